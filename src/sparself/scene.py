@@ -1,0 +1,337 @@
+"""Scene, Camera, Frame: a capture's images, intrinsics and poses in ONE convention (COLMAP world-to-camera).
+
+Image decoding lives here, once: EXIF orientation is applied, grayscale / RGBA / 16-bit images become
+RGB float32 in [0, 1], and any unreadable file raises :class:`InputError` naming it.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from .errors import InputError
+from .geometry import Pose, fov_deg, intrinsics_matrix
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+# Parameter layouts of the COLMAP camera models we read: (fx, fy, cx, cy) are taken from these.
+_PINHOLE_LIKE = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "SIMPLE_RADIAL_FISHEYE": ("f", "cx", "cy", "k"),
+    "RADIAL_FISHEYE": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+}
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics of one physical camera, with COLMAP's model name and parameter order.
+
+    Distortion parameters are carried through for export but ignored by the pinhole maths here.
+    """
+
+    model: str
+    width: int
+    height: int
+    params: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if self.model not in _PINHOLE_LIKE:
+            raise ValueError(f"unsupported camera model {self.model!r}")
+        names = _PINHOLE_LIKE[self.model]
+        if len(self.params) != len(names):
+            raise ValueError(f"{self.model} needs {len(names)} parameters, got {len(self.params)}")
+        if not np.all(np.isfinite(self.params)):
+            raise ValueError("camera parameters contain NaN or inf")
+        object.__setattr__(self, "params", tuple(float(p) for p in self.params))
+
+    def _get(self, name: str) -> float:
+        return self.params[_PINHOLE_LIKE[self.model].index(name)]
+
+    @property
+    def fx(self) -> float:
+        return self._get("f") if "f" in _PINHOLE_LIKE[self.model] else self._get("fx")
+
+    @property
+    def fy(self) -> float:
+        return self._get("f") if "f" in _PINHOLE_LIKE[self.model] else self._get("fy")
+
+    @property
+    def cx(self) -> float:
+        return self._get("cx")
+
+    @property
+    def cy(self) -> float:
+        return self._get("cy")
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsics matrix."""
+        return intrinsics_matrix(self.fx, self.fy, self.cx, self.cy)
+
+    @property
+    def fov_deg(self) -> tuple[float, float]:
+        """(horizontal, vertical) field of view in degrees."""
+        return fov_deg(self.width, self.fx), fov_deg(self.height, self.fy)
+
+    @classmethod
+    def pinhole(cls, width: int, height: int, fx: float, fy: float | None = None,
+                cx: float | None = None, cy: float | None = None) -> "Camera":
+        """A PINHOLE camera; the principal point defaults to the image centre."""
+        fy = fx if fy is None else fy
+        cx = width / 2.0 if cx is None else cx
+        cy = height / 2.0 if cy is None else cy
+        return cls("PINHOLE", int(width), int(height), (fx, fy, cx, cy))
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera for images resampled to (width, height): focal and centre scale per axis.
+
+        Follows the pixel-corner convention (COLMAP's): a pixel centre x maps to (x + 0.5) s - 0.5
+        only approximately; we scale the principal point by s, as COLMAP's own image undistorter does.
+        """
+        sx, sy = width / self.width, height / self.height
+        return Camera.pinhole(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
+
+
+@dataclass
+class Frame:
+    """One image of a scene: its pose, its camera, its place in the capture order.
+
+    index: position in capture order; fractional for planned (novel) poses, e.g. 3.5 between 3 and 4.
+    path: the image file, or None for a pose without a photo (a planned view before synthesis).
+    image: an in-memory image (H, W, 3) float32 in [0, 1], used instead of ``path`` when set
+           (synthesized views before they are written).
+    """
+
+    name: str
+    pose: Pose
+    camera_id: int = 1
+    index: float = 0.0
+    path: Path | None = None
+    image: np.ndarray | None = None
+    synthetic: bool = False
+
+
+@dataclass
+class Scene:
+    """A capture: cameras (by id), frames in capture order, optional depth bounds and sparse points.
+
+    bounds: (near, far) scene depth range over all cameras, if known (LLFF stores it; COLMAP points give it).
+    points: (P, 3) sparse world points, if known.
+    """
+
+    cameras: dict[int, Camera]
+    frames: list[Frame]
+    bounds: tuple[float, float] | None = None
+    points: np.ndarray | None = None
+    source: Path | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for f in self.frames:
+            if f.camera_id not in self.cameras:
+                raise ValueError(f"frame {f.name} refers to unknown camera {f.camera_id}")
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    # ---- poses -------------------------------------------------------------------------------
+    @property
+    def poses(self) -> list[Pose]:
+        return [f.pose for f in self.frames]
+
+    def camera(self, i: int) -> Camera:
+        """The camera of frame i."""
+        return self.cameras[self.frames[i].camera_id]
+
+    def centers(self) -> np.ndarray:
+        """(N, 3) camera centres."""
+        return np.stack([f.pose.center for f in self.frames]) if self.frames else np.zeros((0, 3))
+
+    def c2w(self) -> np.ndarray:
+        """(N, 4, 4) camera-to-world matrices (OpenCV camera axes)."""
+        return np.stack([f.pose.c2w() for f in self.frames])
+
+    def w2c(self) -> np.ndarray:
+        """(N, 4, 4) world-to-camera matrices."""
+        return np.stack([f.pose.w2c() for f in self.frames])
+
+    def scale(self) -> float:
+        """A length scale of the capture: the median distance of camera centres to their mean (>0)."""
+        c = self.centers()
+        d = np.linalg.norm(c - c.mean(0), axis=1)
+        s = float(np.median(d)) if len(d) else 1.0
+        return s if s > 1e-9 else 1.0
+
+    def depth_bounds(self) -> tuple[float, float]:
+        """(near, far) scene depth. From ``bounds`` if known, else from the sparse points seen in front
+        of the cameras (1st/99th percentile), else a guess from the camera layout (logged)."""
+        if self.bounds is not None:
+            return float(self.bounds[0]), float(self.bounds[1])
+        if self.points is not None and len(self.points) >= 10:
+            depths = []
+            for f in self.frames:
+                z = (self.points @ f.pose.R.T + f.pose.tvec)[:, 2]
+                depths.append(z[z > 0])
+            z = np.concatenate(depths) if depths else np.zeros(0)
+            if len(z) >= 10:
+                near, far = np.percentile(z, 1) * 0.9, np.percentile(z, 99) * 1.1
+                return float(max(near, 1e-3)), float(max(far, near * 1.5))
+        # Cameras looking at a common centre: the scene lies around the centroid of the centres.
+        dist = float(np.median(np.linalg.norm(self.centers() - self.centers().mean(0), axis=1)))
+        dist = dist if dist > 1e-9 else 1.0
+        log.warning("scene has no depth bounds or sparse points; guessing near/far from camera layout")
+        return 0.2 * dist, 5.0 * dist
+
+    # ---- images ------------------------------------------------------------------------------
+    def image(self, i: int, size: tuple[int, int] | None = None) -> np.ndarray:
+        """Image of frame i as (H, W, 3) float32 in [0, 1], optionally resized to size = (W, H)."""
+        f = self.frames[i]
+        if f.image is not None:
+            img = f.image
+            if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+                img = resize_image(img, size)
+            return img
+        if f.path is None:
+            raise InputError(f"frame {f.name} has no image (a planned pose that was not synthesized)")
+        cam = self.camera(i)
+        img = load_image(f.path, size=size)
+        if size is None and (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+            raise InputError(
+                f"{f.path}: image is {img.shape[1]}x{img.shape[0]} but its camera says {cam.width}x{cam.height}"
+            )
+        return img
+
+    def images(self, size: tuple[int, int] | None = None, indices: Iterable[int] | None = None) -> np.ndarray:
+        """(N, H, W, 3) float32 images (all frames, or ``indices``), optionally resized to size = (W, H)."""
+        idx = range(len(self.frames)) if indices is None else list(indices)
+        return np.stack([self.image(i, size) for i in idx])
+
+    # ---- derived scenes ----------------------------------------------------------------------
+    def subset(self, indices: Sequence[int]) -> "Scene":
+        """A scene with only the given frames (in the given order); cameras and bounds are shared."""
+        frames = [self.frames[i] for i in indices]
+        return replace(self, frames=frames)
+
+    def resized(self, max_side: int) -> "Scene":
+        """The scene at a lower resolution: cameras scaled so their longer side is ``max_side`` pixels.
+
+        Images are resized when loaded through :meth:`image` with :meth:`image_size`.
+        """
+        cams = {}
+        for cid, cam in self.cameras.items():
+            s = max_side / max(cam.width, cam.height)
+            w, h = max(1, int(round(cam.width * s))), max(1, int(round(cam.height * s)))
+            cams[cid] = cam.resized(w, h)
+        out = replace(self, cameras=cams)
+        out.meta = dict(self.meta, resized_from={cid: (c.width, c.height) for cid, c in self.cameras.items()})
+        return out
+
+    def image_size(self, i: int = 0) -> tuple[int, int]:
+        """(W, H) of frame i's camera."""
+        c = self.camera(i)
+        return c.width, c.height
+
+    def load(self, i: int) -> np.ndarray:
+        """Image of frame i at its camera's size (resizing when the scene was :meth:`resized`)."""
+        return self.image(i, self.image_size(i))
+
+    def load_all(self) -> np.ndarray:
+        """(N, H, W, 3) images at the cameras' size. All frames must share one image size."""
+        sizes = {self.image_size(i) for i in range(len(self))}
+        if len(sizes) > 1:
+            raise InputError(f"frames have different image sizes {sorted(sizes)}; resize the scene first")
+        return np.stack([self.load(i) for i in range(len(self))])
+
+
+# ---- image files -------------------------------------------------------------------------------
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files of a folder, sorted by name. Raises InputError if the folder is missing or has none."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise InputError(f"{folder}: no such folder")
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+    if not files:
+        raise InputError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)})")
+    return files
+
+
+def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = True) -> np.ndarray:
+    """Decode an image file to (H, W, 3) float32 RGB in [0, 1].
+
+    EXIF orientation is applied (phone photos), grayscale and RGBA are converted to RGB (alpha is
+    dropped), 16-bit images keep their precision. size: optional (W, H) to resize to (area filter).
+    Raises InputError naming the file when it is empty, truncated or not an image.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: file is empty (0 bytes)")
+    try:
+        with Image.open(path) as im:
+            im.load()
+            im = ImageOps.exif_transpose(im)
+            mode = im.mode
+            if mode in ("I;16", "I;16B", "I;16L", "I"):
+                arr = np.asarray(im, dtype=np.float32)
+                arr = arr / (65535.0 if arr.max() > 255 or mode.startswith("I;16") else 255.0)
+                arr = np.repeat(arr[..., None], 3, axis=2)
+                if warn:
+                    log.warning("%s: 16-bit grayscale image converted to RGB", path.name)
+            else:
+                if mode not in ("RGB",) and warn:
+                    log.warning("%s: %s image converted to RGB", path.name, mode)
+                arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+    except UnidentifiedImageError:
+        raise InputError(f"{path}: not an image file (cannot identify format)") from None
+    except (OSError, SyntaxError, ValueError) as e:
+        raise InputError(f"{path}: cannot decode image ({e}); the file may be truncated or corrupt") from None
+    arr = np.ascontiguousarray(np.clip(arr, 0.0, 1.0), dtype=np.float32)
+    if size is not None and (arr.shape[1], arr.shape[0]) != tuple(size):
+        arr = resize_image(arr, size)
+    return arr
+
+
+def image_size_of(path: Path) -> tuple[int, int]:
+    """(W, H) of an image file after EXIF orientation, reading only its header."""
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+            orient = im.getexif().get(0x0112, 1)
+    except UnidentifiedImageError:
+        raise InputError(f"{path}: not an image file (cannot identify format)") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read image ({e})") from None
+    return (h, w) if orient in (5, 6, 7, 8) else (w, h)
+
+
+def resize_image(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize (H, W, 3) float32 to size = (W, H), area-averaging when shrinking."""
+    import cv2
+
+    w, h = int(size[0]), int(size[1])
+    interp = cv2.INTER_AREA if w < img.shape[1] else cv2.INTER_LINEAR
+    return np.ascontiguousarray(cv2.resize(img, (w, h), interpolation=interp), dtype=np.float32)
+
+
+def save_image(path: Path, img: np.ndarray) -> None:
+    """Write (H, W, 3) float in [0, 1] as 8-bit PNG or JPEG (by suffix)."""
+    arr = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    Image.fromarray(arr).save(path, quality=95) if Path(path).suffix.lower() in (".jpg", ".jpeg") else \
+        Image.fromarray(arr).save(path)

@@ -1,0 +1,83 @@
+"""Image warps over tensors: homography warps and plane-sweep volumes (shared by model, baselines, MPI).
+
+Pixel convention (COLMAP's, used everywhere in sparself): the top-left image corner is (0, 0) and the
+centre of pixel (row i, col j) is (j + 0.5, i + 0.5). With ``grid_sample(align_corners=False)`` a
+continuous pixel coordinate u maps to the normalised coordinate 2 u / W - 1 exactly.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+
+def pixel_grid(h: int, w: int, device=None, dtype=torch.float32) -> torch.Tensor:
+    """Homogeneous pixel-centre coordinates. -> (H, W, 3) with [..., :] = (u, v, 1)."""
+    v, u = torch.meshgrid(
+        torch.arange(h, device=device, dtype=dtype) + 0.5,
+        torch.arange(w, device=device, dtype=dtype) + 0.5,
+        indexing="ij",
+    )
+    return torch.stack([u, v, torch.ones_like(u)], dim=-1)
+
+
+def plane_homographies(
+    K_src: torch.Tensor, w2c_src: torch.Tensor, K_dst: torch.Tensor, w2c_dst: torch.Tensor, depths: torch.Tensor
+) -> torch.Tensor:
+    """Destination-to-source homographies of fronto-parallel planes z = depth in the destination camera.
+
+    K_src: (S, 3, 3), w2c_src: (S, 4, 4); K_dst: (3, 3), w2c_dst: (4, 4); depths: (D,).
+    Returns (S, D, 3, 3) H with p_src ~ H p_dst. Same formula as :func:`sparself.geometry.plane_homography`.
+    """
+    rel = w2c_src @ torch.linalg.inv(w2c_dst)  # dst camera -> src camera, (S, 4, 4)
+    R = rel[:, :3, :3]
+    t = rel[:, :3, 3]
+    n = torch.tensor([0.0, 0.0, 1.0], dtype=R.dtype, device=R.device)
+    tn = t[:, None, :, None] * n[None, None, None, :] / depths[None, :, None, None]  # (S, D, 3, 3)
+    M = R[:, None] + tn
+    return K_src[:, None] @ M @ torch.linalg.inv(K_dst)[None, None]
+
+
+def homography_warp(src: torch.Tensor, H: torch.Tensor, out_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Warp images by destination-to-source homographies with bilinear sampling.
+
+    src: (N, C, Hs, Ws); H: (N, 3, 3) mapping destination pixels to source pixels; out_hw: (Hd, Wd).
+    Returns (warped (N, C, Hd, Wd), valid (N, 1, Hd, Wd) in {0, 1}: the sample fell inside the source).
+    """
+    n, _, hs, ws = src.shape
+    hd, wd = out_hw
+    grid = pixel_grid(hd, wd, device=src.device, dtype=H.dtype).reshape(1, -1, 3)  # (1, P, 3)
+    p = grid @ H.transpose(1, 2)  # (N, P, 3)
+    z = p[..., 2:3]
+    # points behind the source camera (z <= 0) are invalid; keep the division finite
+    zsafe = torch.where(z.abs() < 1e-8, torch.full_like(z, 1e-8), z)
+    uv = p[..., :2] / zsafe
+    norm = torch.stack([2.0 * uv[..., 0] / ws - 1.0, 2.0 * uv[..., 1] / hs - 1.0], dim=-1)
+    inside = (norm.abs() <= 1.0).all(-1) & (z[..., 0] > 0)
+    norm = torch.where(inside[..., None], norm, torch.full_like(norm, 2.0))  # outside -> zeros padding
+    norm = norm.reshape(n, hd, wd, 2).to(src.dtype)
+    out = F.grid_sample(src, norm, mode="bilinear", padding_mode="zeros", align_corners=False)
+    return out, inside.reshape(n, 1, hd, wd).to(src.dtype)
+
+
+def plane_sweep(
+    src: torch.Tensor,
+    K_src: torch.Tensor,
+    w2c_src: torch.Tensor,
+    K_dst: torch.Tensor,
+    w2c_dst: torch.Tensor,
+    depths: torch.Tensor,
+    out_hw: tuple[int, int],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Plane-sweep volume: every source image warped onto every depth plane of the destination camera.
+
+    src: (S, C, H, W); K_src: (S, 3, 3); w2c_src: (S, 4, 4); K_dst: (3, 3); w2c_dst: (4, 4); depths: (D,).
+    Returns (volume (S, D, C, Hd, Wd), valid (S, D, 1, Hd, Wd)).
+    """
+    s, c, h, w = src.shape
+    d = depths.shape[0]
+    H = plane_homographies(K_src.double(), w2c_src.double(), K_dst.double(), w2c_dst.double(), depths.double())
+    srcs = src[:, None].expand(s, d, c, h, w).reshape(s * d, c, h, w)
+    out, valid = homography_warp(srcs, H.reshape(s * d, 3, 3), out_hw)
+    hd, wd = out_hw
+    return out.reshape(s, d, c, hd, wd), valid.reshape(s, d, 1, hd, wd)
