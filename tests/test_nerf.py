@@ -70,3 +70,16 @@ def test_nerf_is_deterministic_for_a_seed():
     a = fit(scene, NerfConfig(seed=3, **cfg)).render(held[0], scene.cameras[1])
     b = fit(scene, NerfConfig(seed=3, **cfg)).render(held[0], scene.cameras[1])
     np.testing.assert_array_equal(a, b)
+
+
+def test_gsplat_says_clearly_what_it_needs_when_it_cannot_run():
+    from sparself.errors import SparselfError
+    from sparself.recon import gsplat as gs
+
+    ok, why = gs.available()
+    if ok:
+        pytest.skip("gsplat and CUDA are available here; the clear-error path is not reachable")
+    scene, _ = _plane_scene(n_side=2, size=8)
+    with pytest.raises(SparselfError, match=r"gsplat reconstructor needs CUDA and `pip install sparself\[gsplat\]`: "):
+        gs.fit(scene, steps=1)
+    assert why.startswith("gsplat reconstructor needs CUDA")

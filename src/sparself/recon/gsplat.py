@@ -1,0 +1,227 @@
+"""3D Gaussian splatting through the optional ``gsplat`` package (``pip install sparself[gsplat]``), on CUDA.
+
+``gsplat`` is imported only inside :func:`fit`; when the package or a CUDA device is missing a
+:class:`SparselfError` says so, instead of a silent fallback. Cameras follow COLMAP's conventions
+(world-to-camera matrices, pixel centres at +0.5), which is what ``gsplat.rasterization`` expects.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError, SparselfError
+from ..geometry import Pose
+from ..scene import Camera, Scene
+
+log = logging.getLogger(__name__)
+
+_NEEDS = "gsplat reconstructor needs CUDA and `pip install sparself[gsplat]`"
+
+
+@dataclass
+class GsplatConfig:
+    """Settings of :func:`fit` (a short schedule of the reference 3DGS recipe)."""
+
+    steps: int = 7000
+    init_points: int = 20000  # random points in the scene bounds when the scene has no sparse points
+    sh_degree: int = 3
+    sh_increase_every: int = 1000
+    ssim_lambda: float = 0.2
+    lr_means: float = 1.6e-4
+    lr_scales: float = 5e-3
+    lr_quats: float = 1e-3
+    lr_opacities: float = 5e-2
+    lr_sh0: float = 2.5e-3
+    lr_shN: float = 2.5e-3 / 20
+    densify: bool = True  # gsplat's DefaultStrategy (clone/split/prune) when available
+    seed: int = 0
+    max_side: int | None = None
+    progress: bool = True
+
+
+def _require_gsplat():
+    """Import gsplat and torch with CUDA, or raise a clear SparselfError."""
+    try:
+        import torch
+    except ImportError as e:  # pragma: no cover - torch is a hard dependency
+        raise SparselfError(f"{_NEEDS}: torch is missing ({e})") from None
+    try:
+        import gsplat  # noqa: F401
+    except Exception as e:  # ImportError, or a CUDA extension that fails to build/load
+        raise SparselfError(f"{_NEEDS}: the gsplat package is not importable ({type(e).__name__}: {e})") from None
+    if not torch.cuda.is_available():
+        raise SparselfError(f"{_NEEDS}: no CUDA device is available (torch {torch.__version__})")
+    return gsplat, torch
+
+
+def available() -> tuple[bool, str]:
+    """(True, "") when gsplat can run here, else (False, the reason)."""
+    try:
+        _require_gsplat()
+    except SparselfError as e:
+        return False, str(e)
+    return True, ""
+
+
+class GsplatRenderer:
+    """Fitted Gaussians. ``render(pose, camera) -> (H, W, 3) float32 in [0, 1]``."""
+
+    def __init__(self, params, sh_degree: int, background):
+        self.params = params
+        self.sh_degree = sh_degree
+        self.background = background
+
+    def render(self, pose: Pose, camera: Camera) -> np.ndarray:
+        gsplat, torch = _require_gsplat()
+        dev = self.params["means"].device
+        with torch.no_grad():
+            img, _, _ = _rasterize(gsplat, torch, self.params, [pose], [camera], self.sh_degree,
+                                   self.background, dev)
+        return img[0].clamp(0, 1).cpu().numpy().astype(np.float32)
+
+
+def _rasterize(gsplat, torch, params, poses, cameras, sh_degree, background, dev):
+    viewmats = torch.tensor(np.stack([p.w2c() for p in poses]), dtype=torch.float32, device=dev)
+    Ks = torch.tensor(np.stack([c.K for c in cameras]), dtype=torch.float32, device=dev)
+    colors = torch.cat([params["sh0"], params["shN"]], 1)  # (N, K, 3)
+    renders, alphas, info = gsplat.rasterization(
+        means=params["means"],
+        quats=params["quats"],
+        scales=torch.exp(params["scales"]),
+        opacities=torch.sigmoid(params["opacities"]),
+        colors=colors,
+        viewmats=viewmats,
+        Ks=Ks,
+        width=cameras[0].width,
+        height=cameras[0].height,
+        sh_degree=sh_degree,
+        backgrounds=background.expand(len(poses), 3),
+        packed=False,
+        absgrad=False,
+    )
+    return renders, alphas, info
+
+
+def _init_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) initial means and (P, 3) colours: the sparse points when known, else random in the
+    depth-bounded frustum of the cameras (grey)."""
+    if scene.points is not None and len(scene.points) >= 100:
+        pts = np.asarray(scene.points, dtype=np.float32)
+        if len(pts) > 200_000:
+            pts = pts[rng.choice(len(pts), 200_000, replace=False)]
+        return pts, np.full_like(pts, 0.5)
+    near, far = scene.depth_bounds()
+    pts = []
+    per = max(1, cfg.init_points // max(len(scene), 1))
+    for i, f in enumerate(scene.frames):
+        cam = scene.camera(i)
+        u = rng.uniform(0, cam.width, per)
+        v = rng.uniform(0, cam.height, per)
+        z = np.exp(rng.uniform(np.log(near), np.log(far), per))
+        pc = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
+        pts.append((pc - f.pose.tvec) @ f.pose.R)  # R^T (x - t)
+    pts = np.concatenate(pts).astype(np.float32)
+    return pts, np.full_like(pts, 0.5)
+
+
+def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> GsplatRenderer:
+    """Fit 3D Gaussians to every frame of ``scene`` with gsplat on CUDA.
+
+    Raises SparselfError (before any work) when gsplat or CUDA is missing.
+    """
+    gsplat, torch = _require_gsplat()
+    cfg = config or GsplatConfig()
+    if overrides:
+        cfg = GsplatConfig(**{**cfg.__dict__, **{k: v for k, v in overrides.items() if k in cfg.__dict__}})
+    if len(scene) == 0:
+        raise InputError("gsplat: the scene has no frames to train on")
+    if cfg.max_side:
+        scene = scene.resized(cfg.max_side)
+    from tqdm.auto import tqdm
+
+    dev = torch.device("cuda")
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    pts, cols = _init_points(scene, cfg, rng)
+    means = torch.tensor(pts, device=dev)
+    # initial scale: distance to the 3 nearest neighbours (log), as in the reference implementation
+    with torch.no_grad():
+        d = torch.cdist(means[:4096], means) if len(means) > 4096 else torch.cdist(means, means)
+        knn = d.topk(4, largest=False).values[:, 1:].mean(1).clamp_min(1e-7)
+        s0 = float(torch.log(knn.mean()))
+    n = len(means)
+    sh0 = (torch.tensor(cols, device=dev) - 0.5) / 0.28209479177387814
+    K = (cfg.sh_degree + 1) ** 2
+    params = torch.nn.ParameterDict({
+        "means": torch.nn.Parameter(means),
+        "scales": torch.nn.Parameter(torch.full((n, 3), s0, device=dev)),
+        "quats": torch.nn.Parameter(torch.nn.functional.normalize(torch.randn(n, 4, device=dev), dim=-1)),
+        "opacities": torch.nn.Parameter(torch.logit(torch.full((n,), 0.1, device=dev))),
+        "sh0": torch.nn.Parameter(sh0[:, None, :]),
+        "shN": torch.nn.Parameter(torch.zeros(n, K - 1, 3, device=dev)),
+    })
+    scene_scale = float(scene.scale())
+    lrs = {"means": cfg.lr_means * scene_scale, "scales": cfg.lr_scales, "quats": cfg.lr_quats,
+           "opacities": cfg.lr_opacities, "sh0": cfg.lr_sh0, "shN": cfg.lr_shN}
+    optimizers = {k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15)
+                  for k, lr in lrs.items()}
+    strategy = state = None
+    if cfg.densify:
+        try:
+            from gsplat.strategy import DefaultStrategy
+
+            strategy = DefaultStrategy(refine_stop_iter=int(cfg.steps * 0.5), verbose=False)
+            strategy.check_sanity(params, optimizers)
+            state = strategy.initialize_state(scene_scale=scene_scale)
+        except Exception as e:  # older gsplat without strategies: fit without densification
+            log.warning("gsplat: densification strategy unavailable (%s); fitting without it", e)
+            strategy = None
+    images = [torch.tensor(scene.load(i), device=dev) for i in range(len(scene))]
+    background = torch.zeros(3, device=dev)
+    mean_decay = 0.01 ** (1.0 / max(cfg.steps, 1))
+    for step in tqdm(range(cfg.steps), desc="gsplat fit", disable=not cfg.progress, leave=False):
+        i = int(rng.integers(len(scene)))
+        sh_deg = min(step // cfg.sh_increase_every, cfg.sh_degree)
+        render, _, info = _rasterize(gsplat, torch, params, [scene.frames[i].pose], [scene.camera(i)],
+                                     sh_deg, background, dev)
+        if strategy is not None:
+            strategy.step_pre_backward(params, optimizers, state, step, info)
+        gt = images[i][None]
+        l1 = (render - gt).abs().mean()
+        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - _ssim_torch(torch, render, gt))
+        loss.backward()
+        if strategy is not None:
+            strategy.step_post_backward(params, optimizers, state, step, info, packed=False)
+        for opt in optimizers.values():
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        for g in optimizers["means"].param_groups:
+            g["lr"] *= mean_decay
+    log.info("gsplat: %d Gaussians after %d steps", len(params["means"]), cfg.steps)
+    return GsplatRenderer(params, cfg.sh_degree, background)
+
+
+def _ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
+    """Mean SSIM of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
+    import torch.nn.functional as F
+
+    x = a.permute(0, 3, 1, 2)
+    y = b.permute(0, 3, 1, 2)
+    g = torch.exp(-((torch.arange(window, device=a.device) - window // 2) ** 2) / (2 * sigma ** 2))
+    g = (g / g.sum()).float()
+    k = (g[:, None] * g[None, :]).expand(3, 1, window, window).contiguous()
+
+    def blur(z):
+        return F.conv2d(z, k, padding=window // 2, groups=3)
+
+    mx, my = blur(x), blur(y)
+    sxx, syy, sxy = blur(x * x) - mx ** 2, blur(y * y) - my ** 2, blur(x * y) - mx * my
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx ** 2 + my ** 2 + c1) * (sxx + syy + c2))
+    return s.mean()
+
+
+__all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]
