@@ -1,0 +1,393 @@
+"""The paper's novel-pose plan (section 3.2): midpoints between consecutive views and extrapolations
+beyond the ends of the capture path.
+
+A planned pose is the LERP of two camera centres and the shortest-arc SLERP of their rotations
+(:func:`sparself.geometry.interpolate_pose`), at t = 0.5 between two consecutive views and at t = 1.2
+past the last (and, mirrored, the first) view. By default 8 midpoints + 2 extrapolations = 10 new poses,
+the paper's 25 + 10 setting.
+
+Design decisions (documented here because they change which poses come out):
+
+* **Which views are consecutive.** ``order="capture"`` takes the scene's frame order. ``"nearest"``
+  builds a greedy nearest-neighbour path (distance = camera-centre distance in units of the scene
+  scale + rotation angle in radians, so a rotation-only capture still orders). ``"auto"`` keeps the
+  capture order unless its path is more than ``AUTO_RATIO`` (1.5x) longer than the nearest-neighbour
+  path: a real sequential capture walks about as far as the greedy path (often less), a shuffled or
+  name-sorted unordered set walks many times further.
+* **Which gaps get a midpoint.** There are N - 1 gaps for ``n_mid`` midpoints. ``gaps="even"`` (default)
+  spreads them evenly along the path, as the paper's evenly captured 25 views imply, so the new views
+  cover the whole trajectory. ``gaps="largest"`` takes the widest gaps (centre distance + rotation, as
+  above) instead, which suits uneven captures. When ``n_mid > N - 1`` it is capped at N - 1 (logged).
+* **Extrapolations.** They alternate between the end (pair (N-2, N-1), t = 1.2) and the start
+  (pair (1, 0), t = 1.2); a second one at the same end continues further (t = 1.4, 1.6, ...).
+* **Fractional index.** A planned frame's ``index`` is the LERP of its pair's indices at the same t
+  (3.5 between frames 3 and 4; N - 1 + 0.2 past the end; -0.2 before the start). When the frames'
+  own indices are not monotonic along the path (a nearest-neighbour path through an unordered set),
+  positions along the path are used instead; :func:`order_frames` gives that path and
+  :func:`reindexed` the scene re-indexed along it, so sources and targets share one index scale.
+
+Cost: the nearest-neighbour path is O(N^2) time and O(N) memory (one distance row at a time), so
+500 views plan in well under a second.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, InputError
+from .geometry import Pose, interpolate_pose, quat_angle
+from .outputs import atomic_file
+from .scene import Frame, Scene
+
+log = logging.getLogger(__name__)
+
+AUTO_RATIO = 1.5  # "auto" switches to the nearest-neighbour path when capture order walks this much further
+PLAN_FORMAT = "sparself-plan"
+PLAN_VERSION = 1
+
+
+@dataclass
+class PlanConfig:
+    """How many novel poses to plan and where.
+
+    n_mid: midpoints between consecutive views (the paper: 8).
+    n_extra: extrapolated poses beyond the ends of the path (the paper: 2).
+    t_mid: interpolation parameter of a midpoint (0.5).
+    t_extra: extrapolation parameter past the pair's second view (1.2).
+    order: "auto" | "capture" | "nearest" (see the module docstring).
+    gaps: "even" | "largest": which of the N - 1 gaps receive the midpoints.
+    """
+
+    n_mid: int = 8
+    n_extra: int = 2
+    t_mid: float = 0.5
+    t_extra: float = 1.2
+    order: str = "auto"
+    gaps: str = "even"
+
+    def validate(self) -> None:
+        if int(self.n_mid) != self.n_mid or self.n_mid < 0:
+            raise ConfigError(f"n_mid must be a non-negative integer, got {self.n_mid}")
+        if int(self.n_extra) != self.n_extra or self.n_extra < 0:
+            raise ConfigError(f"n_extra must be a non-negative integer, got {self.n_extra}")
+        if not (0.0 < self.t_mid < 1.0):
+            raise ConfigError(f"t_mid must lie strictly between 0 and 1, got {self.t_mid}")
+        if not (self.t_extra > 1.0 and math.isfinite(self.t_extra)):
+            raise ConfigError(f"t_extra must be a finite number > 1, got {self.t_extra}")
+        if self.order not in ("auto", "capture", "nearest"):
+            raise ConfigError(f"order must be auto, capture or nearest, got {self.order!r}")
+        if self.gaps not in ("even", "largest"):
+            raise ConfigError(f"gaps must be even or largest, got {self.gaps!r}")
+
+
+# ---- ordering ------------------------------------------------------------------------------------
+
+def _step_costs(centers: np.ndarray, quats: np.ndarray, scale: float, i: int, js: np.ndarray) -> np.ndarray:
+    """Distance from view i to views js: centre distance / scale + rotation angle (rad). -> (len(js),)"""
+    d = np.linalg.norm(centers[js] - centers[i], axis=1) / scale
+    dots = np.clip(np.abs(quats[js] @ quats[i]), 0.0, 1.0)
+    return d + 2.0 * np.arccos(dots)
+
+
+def path_length(scene: Scene, order: np.ndarray) -> float:
+    """Length of the path visiting the views in ``order`` (same distance as the ordering uses)."""
+    centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
+    order = np.asarray(order)
+    if len(order) < 2:
+        return 0.0
+    d = np.linalg.norm(np.diff(centers[order], axis=0), axis=1) / scale
+    dots = np.clip(np.abs(np.sum(quats[order[1:]] * quats[order[:-1]], axis=1)), 0.0, 1.0)
+    return float(np.sum(d + 2.0 * np.arccos(dots)))
+
+
+def _greedy_path(centers: np.ndarray, quats: np.ndarray, scale: float, start: int) -> np.ndarray:
+    n = len(centers)
+    visited = np.zeros(n, dtype=bool)
+    order = np.empty(n, dtype=np.int64)
+    cur = start
+    for k in range(n):
+        order[k] = cur
+        visited[cur] = True
+        if k == n - 1:
+            break
+        rest = np.flatnonzero(~visited)
+        cur = int(rest[np.argmin(_step_costs(centers, quats, scale, cur, rest))])
+    return order
+
+
+def nearest_neighbour_order(scene: Scene) -> np.ndarray:
+    """A short path through all views: greedy nearest neighbour, O(N^2) time, O(N) memory.
+
+    Started from three candidates (frame 0, the view farthest from the centroid, and the view farthest
+    from that one — the ends of an open arc), keeping the shortest; deterministic. -> (N,) frame indices.
+    """
+    centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
+    far1 = int(np.argmax(np.linalg.norm(centers - centers.mean(0), axis=1)))
+    far2 = int(np.argmax(_step_costs(centers, quats, scale, far1, np.arange(len(centers)))))
+    best, best_len = None, np.inf
+    for s in dict.fromkeys([0, far1, far2]):  # ordered, without repeats
+        o = _greedy_path(centers, quats, scale, s)
+        length = path_length(scene, o)
+        if length < best_len - 1e-12:
+            best, best_len = o, length
+    # Present the path in the direction that agrees with capture order where it can (stable output).
+    if best[0] > best[-1]:
+        best = best[::-1].copy()
+    return best
+
+
+def order_frames(scene: Scene, order: str = "auto") -> np.ndarray:
+    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``."""
+    n = len(scene)
+    capture = np.arange(n)
+    if order == "capture" or n < 3:
+        return capture
+    nn = nearest_neighbour_order(scene)
+    if order == "nearest":
+        return nn
+    if order != "auto":
+        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
+    cap_len, nn_len = path_length(scene, capture), path_length(scene, nn)
+    if cap_len > AUTO_RATIO * nn_len:
+        log.info("capture order walks %.2fx the nearest-neighbour path: treating the views as unordered",
+                 cap_len / max(nn_len, 1e-12))
+        return nn
+    return capture
+
+
+def _indices_along(scene: Scene, seq: np.ndarray) -> np.ndarray:
+    """Index of each view along the path: the frames' own when monotonic along it, else positions."""
+    own = np.array([scene.frames[i].index for i in seq], dtype=np.float64)
+    steps = np.diff(own)
+    if len(own) < 2 or np.all(steps > 0) or np.all(steps < 0):
+        return own
+    log.info("frame indices are not monotonic along the path; planned indices count positions along it")
+    return np.arange(len(seq), dtype=np.float64)
+
+
+def reindexed(scene: Scene, seq: np.ndarray) -> Scene:
+    """The scene with its frames in path order and each frame's index = the index the plan uses for it.
+
+    Use it with a plan made with ``order="nearest"`` so source and planned frames share one index scale.
+    """
+    idx = _indices_along(scene, np.asarray(seq))
+    frames = [replace(scene.frames[i], index=float(k)) for i, k in zip(seq, idx)]
+    return replace(scene, frames=frames)
+
+
+# ---- the plan ------------------------------------------------------------------------------------
+
+def novel_name(index: float) -> str:
+    """File name of a planned view: ``novel_0003.50.png`` for index 3.5."""
+    return f"novel_{index:07.2f}.png"
+
+
+def _choose_gaps(scene: Scene, seq: np.ndarray, n_mid: int, how: str) -> np.ndarray:
+    n_gaps = len(seq) - 1
+    if n_mid > n_gaps:
+        log.warning("asked for %d midpoints but %d views have only %d gaps: planning %d",
+                    n_mid, len(seq), n_gaps, n_gaps)
+        n_mid = n_gaps
+    if n_mid == 0:
+        return np.zeros(0, dtype=np.int64)
+    if how == "largest":
+        centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
+        widths = np.array([_step_costs(centers, quats, scale, seq[g], np.array([seq[g + 1]]))[0]
+                           for g in range(n_gaps)])
+        # stable sort: among equal gaps the earlier wins, so the result is deterministic
+        return np.sort(np.argsort(-widths, kind="stable")[:n_mid])
+    # Evenly spread: the centre of each of n_mid equal stretches of the path, symmetric about its middle.
+    return np.floor((np.arange(n_mid) + 0.5) * n_gaps / n_mid).astype(np.int64)
+
+
+def _planned(scene: Scene, ia: int, ib: int, index_a: float, index_b: float, t: float) -> Frame:
+    fa, fb = scene.frames[ia], scene.frames[ib]
+    pose = interpolate_pose(fa.pose, fb.pose, t)
+    index = float(index_a + t * (index_b - index_a))
+    cam = fa.camera_id if t <= 0.5 else fb.camera_id  # the camera of the nearer view
+    return Frame(name=novel_name(index), pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
+
+
+def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
+    """Novel poses for ``scene``: midpoints between consecutive views and extrapolations past the ends.
+
+    Returns Frames sorted by index, each with pose, camera_id, fractional index, a ``novel_*.png`` name,
+    ``path=None`` and ``synthetic=True`` (targets for a synthesizer). Raises InputError for fewer than
+    3 views, ConfigError for a bad config.
+    """
+    cfg = cfg or PlanConfig()
+    cfg.validate()
+    n = len(scene)
+    if n < 3:
+        src = scene.source or "scene"
+        raise InputError(f"{src}: needs at least 3 posed views to plan novel poses, got {n}")
+    seq = order_frames(scene, cfg.order)
+    idx = _indices_along(scene, seq)
+    out: list[Frame] = []
+    for g in _choose_gaps(scene, seq, int(cfg.n_mid), cfg.gaps):
+        out.append(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], cfg.t_mid))
+    for k in range(int(cfg.n_extra)):
+        t = 1.0 + (k // 2 + 1) * (cfg.t_extra - 1.0)
+        if k % 2 == 0:  # past the end: pair (N-2, N-1)
+            out.append(_planned(scene, seq[-2], seq[-1], idx[-2], idx[-1], t))
+        else:  # before the start: pair (1, 0)
+            out.append(_planned(scene, seq[1], seq[0], idx[1], idx[0], t))
+    out.sort(key=lambda f: f.index)
+    return out
+
+
+# ---- plan files ----------------------------------------------------------------------------------
+
+def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None,
+              cfg: PlanConfig | None = None) -> Path:
+    """Write planned frames as JSON, atomically. qvec/tvec (COLMAP world-to-camera) are what
+    :func:`load_plan` reads; c2w and centre are there for people and other tools to read."""
+    path = Path(path)
+    doc = {
+        "format": PLAN_FORMAT,
+        "version": PLAN_VERSION,
+        "convention": "qvec [qw,qx,qy,qz] and tvec are COLMAP world-to-camera; c2w uses OpenCV camera axes",
+        "source": str(scene.source) if scene is not None and scene.source is not None else None,
+        "config": asdict(cfg) if cfg is not None else None,
+        "n_source_views": len(scene) if scene is not None else None,
+        "cameras": (
+            {str(cid): {"model": c.model, "width": c.width, "height": c.height, "params": list(c.params)}
+             for cid, c in scene.cameras.items()} if scene is not None else None
+        ),
+        "frames": [
+            {
+                "name": f.name,
+                "index": float(f.index),
+                "camera_id": int(f.camera_id),
+                "qvec": [float(v) for v in f.pose.qvec],
+                "tvec": [float(v) for v in f.pose.tvec],
+                "center": [float(v) for v in f.pose.center],
+                "c2w": [[float(v) for v in row] for row in f.pose.c2w()[:3]],
+            }
+            for f in frames
+        ],
+    }
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    with atomic_file(path) as tmp:
+        tmp.write_text(text + "\n")
+    return path
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"non-finite number {name}")
+
+
+def _vector(path: Path, i: int, rec: dict, key: str, n: int) -> np.ndarray:
+    try:
+        v = np.asarray(rec[key], dtype=np.float64)
+    except KeyError:
+        raise InputError(f"{path}: frame {i} has no {key!r}") from None
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: frame {i}: {key} is not a list of numbers") from None
+    if v.size != n:
+        raise InputError(f"{path}: frame {i}: {key} must have {n} numbers, got {v.size}")
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{path}: frame {i}: {key} contains NaN or inf")
+    return v.reshape(-1)
+
+
+def load_plan(path: Path, scene: Scene) -> list[Frame]:
+    """Read a plan written by :func:`save_plan`; camera ids must exist in ``scene``.
+
+    Raises InputError naming the file on unreadable or invalid JSON, NaN/inf, wrong shapes, unknown
+    cameras, or a c2w that disagrees with qvec/tvec (someone edited one and not the other).
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(), parse_constant=_reject_constant)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text (JSON) file") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{path}: invalid JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
+    except ValueError as e:
+        raise InputError(f"{path}: invalid plan ({e})") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    if not isinstance(doc, dict) or doc.get("format") != PLAN_FORMAT or not isinstance(doc.get("frames"), list):
+        raise InputError(f"{path}: not a sparself plan (expected format {PLAN_FORMAT!r} with a 'frames' list)")
+    frames = []
+    for i, rec in enumerate(doc["frames"]):
+        if not isinstance(rec, dict):
+            raise InputError(f"{path}: frame {i} is not an object")
+        q = _vector(path, i, rec, "qvec", 4)
+        t = _vector(path, i, rec, "tvec", 3)
+        if np.linalg.norm(q) < 1e-9:
+            raise InputError(f"{path}: frame {i}: qvec is zero")
+        pose = Pose(q, t)
+        if "c2w" in rec:
+            c2w = _vector(path, i, rec, "c2w", 12).reshape(3, 4)
+            if np.abs(c2w - pose.c2w()[:3]).max() > 1e-6:
+                raise InputError(f"{path}: frame {i}: c2w disagrees with qvec/tvec (edit both, or drop c2w)")
+        try:
+            index = float(rec["index"])
+            cam = int(rec.get("camera_id", 1))
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}: frame {i}: missing or non-numeric index/camera_id") from None
+        if not math.isfinite(index):
+            raise InputError(f"{path}: frame {i}: index is not finite")
+        if cam not in scene.cameras:
+            raise InputError(f"{path}: frame {i}: camera {cam} is not a camera of the scene "
+                             f"(has {sorted(scene.cameras)})")
+        name = str(rec.get("name") or novel_name(index))
+        frames.append(Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True))
+    return frames
+
+
+def config_from_plan(path: Path) -> PlanConfig | None:
+    """The PlanConfig stored in a plan file, or None if it has none."""
+    try:
+        doc = json.loads(Path(path).read_text(), parse_constant=_reject_constant)
+    except (OSError, ValueError) as e:
+        raise InputError(f"{path}: cannot read plan ({e})") from None
+    cfg = doc.get("config") if isinstance(doc, dict) else None
+    if not isinstance(cfg, dict):
+        return None
+    known = {f.name for f in fields(PlanConfig)}
+    return PlanConfig(**{k: v for k, v in cfg.items() if k in known})
+
+
+# ---- the `sparself plan` command ------------------------------------------------------------------
+
+def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: Path | None = None,
+              overwrite: bool = False) -> list[Frame]:
+    """Read a scene, plan its novel poses, write the plan JSON (and optionally a camera plot).
+
+    Both files are written atomically and only after everything succeeded; an existing output file is
+    refused unless ``overwrite``. Returns the planned frames.
+    """
+    from .errors import OutputError
+    from .io import read_scene
+
+    out = Path(out)
+    for p in [out] + ([Path(plot)] if plot is not None else []):
+        if p.exists() and not overwrite:
+            raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
+        if p.exists() and p.is_dir():
+            raise OutputError(f"{p}: is a folder, expected a file path")
+    cfg = cfg or PlanConfig()
+    cfg.validate()
+    scene = read_scene(Path(scene_path))
+    frames = plan_poses(scene, cfg)
+    if plot is None:
+        save_plan(out, frames, scene=scene, cfg=cfg)
+    else:
+        from .plot import plot_cameras
+
+        with atomic_file(Path(plot)) as tmp_png:
+            plot_cameras(scene, frames, path=tmp_png)
+            save_plan(out, frames, scene=scene, cfg=cfg)  # the plot is renamed into place after this
+    log.info("planned %d novel poses for %d views -> %s", len(frames), len(scene), out)
+    return frames
