@@ -36,7 +36,7 @@ def frustum_lines(pose_c2w: np.ndarray, cam: Camera, size: float) -> np.ndarray:
 
 
 def _draw(ax, frames: Sequence[Frame], cameras: dict[int, Camera], size: float, style: dict,
-          path_line: bool) -> None:
+          path_line: bool, width: float = 0.7) -> None:
     if not frames:
         return
     default_cam = next(iter(cameras.values()))
@@ -45,7 +45,7 @@ def _draw(ax, frames: Sequence[Frame], cameras: dict[int, Camera], size: float, 
         cam = cameras.get(f.camera_id, default_cam)
         c2w = f.pose.c2w()
         for a, b in frustum_lines(c2w, cam, size):
-            ax.plot(*zip(a, b), color=style["color"], linewidth=0.7)
+            ax.plot(*zip(a, b), color=style["color"], linewidth=width)
         centers.append(c2w[:3, 3])
     centers = np.array(centers)
     ax.scatter(*centers.T, color=style["color"], s=8, label=f"{style['label']} ({len(frames)})")
@@ -71,8 +71,8 @@ def plot_cameras(scene: Scene, planned: Sequence[Frame] | None = None,
     try:
         ax = fig.add_subplot(111, projection="3d")
         _draw(ax, scene.frames, scene.cameras, size, _STYLE["input"], path_line=True)
-        _draw(ax, list(planned or []), scene.cameras, size, _STYLE["planned"], path_line=False)
-        _draw(ax, list(held_out or []), scene.cameras, size, _STYLE["held_out"], path_line=False)
+        _draw(ax, list(planned or []), scene.cameras, size, _STYLE["planned"], path_line=False, width=1.4)
+        _draw(ax, list(held_out or []), scene.cameras, size, _STYLE["held_out"], path_line=False, width=1.4)
         pts = [scene.centers()] + [np.array([f.pose.center for f in fs]) for fs in (planned, held_out) if fs]
         pts = np.concatenate(pts)
         lo, hi = pts.min(0) - size, pts.max(0) + size
@@ -84,7 +84,8 @@ def plot_cameras(scene: Scene, planned: Sequence[Frame] | None = None,
         ax.set_xlabel("x")
         ax.set_ylabel("y")
         ax.set_zlabel("z")
-        name = Path(scene.source).name if scene.source is not None else "scene"
+        src = Path(scene.source) if scene.source is not None else None
+        name = "scene" if src is None else (src.parent.name if src.suffix else src.name)
         ax.set_title(title or f"{name}: {len(scene)} input views, {len(planned or [])} planned")
         ax.legend(loc="upper left", fontsize=8)
         fig.tight_layout()
