@@ -35,13 +35,13 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .errors import ConfigError, InputError
-from .geometry import Pose, interpolate_pose, quat_angle
+from .geometry import Pose, interpolate_pose
 from .outputs import atomic_file
 from .scene import Frame, Scene
 
@@ -209,7 +209,7 @@ def _choose_gaps(scene: Scene, seq: np.ndarray, n_mid: int, how: str) -> np.ndar
 def _planned(scene: Scene, ia: int, ib: int, index_a: float, index_b: float, t: float) -> Frame:
     fa, fb = scene.frames[ia], scene.frames[ib]
     pose = interpolate_pose(fa.pose, fb.pose, t)
-    index = float(index_a + t * (index_b - index_a))
+    index = round(float(index_a + t * (index_b - index_a)), 9)  # -0.2, not -0.19999999999999996
     cam = fa.camera_id if t <= 0.5 else fb.camera_id  # the camera of the nearer view
     return Frame(name=novel_name(index), pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
 
@@ -344,19 +344,6 @@ def load_plan(path: Path, scene: Scene) -> list[Frame]:
         name = str(rec.get("name") or novel_name(index))
         frames.append(Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True))
     return frames
-
-
-def config_from_plan(path: Path) -> PlanConfig | None:
-    """The PlanConfig stored in a plan file, or None if it has none."""
-    try:
-        doc = json.loads(Path(path).read_text(), parse_constant=_reject_constant)
-    except (OSError, ValueError) as e:
-        raise InputError(f"{path}: cannot read plan ({e})") from None
-    cfg = doc.get("config") if isinstance(doc, dict) else None
-    if not isinstance(cfg, dict):
-        return None
-    known = {f.name for f in fields(PlanConfig)}
-    return PlanConfig(**{k: v for k, v in cfg.items() if k in known})
 
 
 # ---- the `sparself plan` command ------------------------------------------------------------------
