@@ -1,0 +1,635 @@
+"""The held-out evaluation protocol: does densifying a sparse capture with synthesized views help?
+
+Protocol (per scene, in this order):
+
+1. **Hold out** evaluation frames before anything else: every ``holdout_every``-th frame (default 8),
+   interior ones only (never the first or last frame, so they are interpolations, as LLFF's
+   ``llffhold`` split but without frame 0). Only their *poses* leave this module's scoring step;
+   their pixels are decoded in :func:`_load_truth`, called only while scoring.
+2. **Dense captures** (enough frames left for at least one real photo in every gap between the N
+   inputs): N evenly spaced frames of the rest are the sparse input (N = 25 by default). The planned
+   midpoints (sparself.plan, 8 by default) are *snapped* to the real frame nearest the planned index in
+   their gap, so each has a real photo at exactly its pose: the ground truth for view synthesis at
+   midpoints, and the oracle's training image. Extrapolated poses (2 by default) keep their planned pose.
+3. **Sparse captures** (too few frames, e.g. 16-view Middlebury rings): every other interior frame is
+   held out and the rest are the inputs. No real photos lie between inputs except held-out ones, so no
+   oracle is run and midpoints are not scored separately (the held-out frames are the midpoints).
+4. Two questions:
+   - *View synthesis*: the network (``seeds`` seeds) and every baseline synthesize the held-out
+     poses from the inputs alone; scored against the real photos.
+   - *Densification*: each reconstructor is fitted on the N inputs ("25"), on N + synthesized views
+     ("35", network per seed and each densify-baseline), and on the oracle (N + real photos at the
+     snapped midpoints; extrapolations keep the network's seed-0 views), then renders the held-out
+     poses. The oracle share is (35 - 25) / (oracle - 25) in PSNR.
+
+Results: a JSON-able dict (per frame, per scene, mean/std, every setting and versions). A scene that
+fails is recorded with its error and the others go on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import platform
+import subprocess
+import time
+import traceback
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from .errors import ConfigError, InputError, SparselfError
+from .report import safe_name as _safe
+from .scene import Frame, Scene, load_image, save_image
+
+log = logging.getLogger(__name__)
+
+SynthFn = Callable[[Scene, list], np.ndarray]  # synthesize(scene, targets) -> (T, H, W, 3)
+NETWORK = "sparself"
+DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
+METRICS = ("psnr", "ssim", "lpips")
+MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported
+
+
+@dataclass
+class EvalConfig:
+    """Every setting of an evaluation run (all recorded in the results).
+
+    size: longer image side in pixels for every step (images are resized once, on load).
+    inputs: N, the number of sparse input views taken from a dense capture.
+    holdout_every: hold out every k-th interior frame of a dense capture.
+    sparse_holdout_every: the same for captures too small for the dense protocol.
+    n_mid, n_extra: planned novel poses (midpoints, extrapolations) for densification.
+    seeds: network seeds (mean +- std is reported over them).
+    reconstructors: names in sparself.recon ("mpi", "nerf", "gsplat").
+    baselines: view-synthesis baselines scored on held-out poses.
+    densify_baselines: baselines whose synthesized views are also used for densification.
+    epochs: network training epochs (None: the network's default).
+    nerf_steps: NeRF optimisation steps per fit.
+    max_eval: score at most this many held-out frames per scene (evenly chosen; None: all).
+    oracle: run the oracle densification where the capture allows it.
+    examples: held-out frames per scene saved as image grids for the report.
+    """
+
+    size: int = 128
+    inputs: int = 25
+    holdout_every: int = 8
+    sparse_holdout_every: int = 2
+    n_mid: int = 8
+    n_extra: int = 2
+    seeds: int = 3
+    reconstructors: tuple[str, ...] = ("mpi", "nerf")
+    baselines: tuple[str, ...] = ("nearest", "blend", "flow", "planesweep")
+    densify_baselines: tuple[str, ...] = ("blend", "flow", "planesweep")
+    epochs: int | None = None
+    nerf_steps: int = 1500
+    recon_seed: int = 0
+    max_eval: int | None = None
+    oracle: bool = True
+    examples: int = 1
+    lpips: bool = True
+    progress: bool = True
+
+    def validate(self) -> None:
+        if self.size < 8:
+            raise ConfigError(f"size must be at least 8 pixels, got {self.size}")
+        if self.inputs < 3:
+            raise ConfigError(f"inputs must be at least 3, got {self.inputs}")
+        if self.holdout_every < 2 or self.sparse_holdout_every < 2:
+            raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
+        if self.seeds < 1:
+            raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+
+    @classmethod
+    def quick(cls, **kw) -> "EvalConfig":
+        """Minutes, not hours, on 2 CPU cores: 64 px, 1 seed, short NeRF, two baselines densified."""
+        base = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=None)
+        base.update(kw)
+        return cls(**base)
+
+
+# ---- the split -------------------------------------------------------------------------------------
+
+def holdout_indices(n: int, every: int = 8) -> list[int]:
+    """Interior frames every ``every`` frames: k*every for 0 < k*every < n - 1.
+
+    >>> holdout_indices(20, 8)
+    [8, 16]
+    """
+    return list(range(every, n - 1, every))
+
+
+def evenly_spaced(indices: Sequence[int], n: int) -> list[int]:
+    """n items of ``indices`` evenly spread from first to last (all of them if n >= len)."""
+    indices = list(indices)
+    if n >= len(indices):
+        return indices
+    pos = np.round(np.linspace(0, len(indices) - 1, n)).astype(int)
+    return [indices[p] for p in pos]
+
+
+def gap_truth(available: Sequence[int], inputs: Sequence[int]) -> list[int | None]:
+    """For each gap between consecutive inputs, the available frame nearest the gap's midpoint
+    strictly inside it (ties: the earlier), or None. ``available`` excludes held-out and input frames."""
+    avail = sorted(available)
+    out: list[int | None] = []
+    for a, b in zip(inputs[:-1], inputs[1:]):
+        inside = [i for i in avail if a < i < b]
+        mid = (a + b) / 2.0
+        out.append(min(inside, key=lambda i: (abs(i - mid), i)) if inside else None)
+    return out
+
+
+@dataclass
+class Split:
+    """Which frame (by position in capture order) plays which role.
+
+    kind: "dense" or "sparse". eval: held-out frames. inputs: sparse input frames.
+    between: frames neither held out nor input (real photos usable as midpoint truth / oracle).
+    rule: the protocol in words, for the report.
+    """
+
+    kind: str
+    eval: list[int]
+    inputs: list[int]
+    between: list[int]
+    rule: str
+
+
+def make_split(n: int, cfg: EvalConfig) -> Split:
+    """The protocol's split of a capture of n frames (see the module docstring)."""
+    held = holdout_indices(n, cfg.holdout_every)
+    rest = [i for i in range(n) if i not in set(held)]
+    if len(rest) >= 2 * cfg.inputs - 1:
+        inputs = evenly_spaced(rest, cfg.inputs)
+        between = [i for i in rest if i not in set(inputs)]
+        rule = (f"dense: every {cfg.holdout_every}th interior frame held out ({len(held)}); "
+                f"{len(inputs)} evenly spaced inputs from the remaining {len(rest)}; the other "
+                f"{len(between)} real frames are ground truth for midpoint poses and the oracle")
+        return Split("dense", held, inputs, between, rule)
+    held = list(range(1, n - 1, cfg.sparse_holdout_every))  # second, fourth, ...: the ends stay inputs
+    inputs = [i for i in range(n) if i not in set(held)]
+    rule = (f"sparse: too few frames for {cfg.inputs} inputs with real frames between them; every "
+            f"{cfg.sparse_holdout_every}nd interior frame from the second on held out ({len(held)}), the other {len(inputs)} "
+            "are the inputs; no oracle (the only real frames between inputs are the held-out ones)")
+    return Split("sparse", held, inputs, [], rule)
+
+
+# ---- helpers ---------------------------------------------------------------------------------------
+
+def _pose_only(f: Frame, **kw) -> Frame:
+    """A copy of f with no pixels attached: what synthesizers and renderers may see of a held-out frame."""
+    return replace(f, path=None, image=None, **kw)
+
+
+def _load_truth(frame: Frame, size: tuple[int, int]) -> np.ndarray:
+    """Decode a real photo for scoring. The ONLY place the evaluation reads a held-out image."""
+    if frame.image is not None:
+        from .scene import resize_image
+
+        img = frame.image
+        return img if (img.shape[1], img.shape[0]) == tuple(size) else resize_image(img, size)
+    if frame.path is None:
+        raise InputError(f"frame {frame.name}: no photo to score against")
+    return load_image(frame.path, size=size)
+
+
+def _score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> dict:
+    from . import metrics
+
+    return {"psnr": metrics.psnr(pred, truth), "ssim": metrics.ssim(pred, truth),
+            "lpips": metrics.lpips(pred, truth) if use_lpips else None}
+
+
+def _summary(frames: list[dict]) -> dict:
+    from .metrics import summarize
+
+    return {m: summarize([f[m] for f in frames]) for m in METRICS}
+
+
+def _over_seeds(per_seed: list[dict]) -> dict:
+    """Mean +- std over seeds of each seed's per-scene mean."""
+    out = {}
+    for m in METRICS:
+        vals = [s["summary"][m]["mean"] for s in per_seed if s["summary"][m]["n"] > 0]
+        out[m] = {"mean": float(np.mean(vals)) if vals else float("nan"),
+                  "std": float(np.std(vals)) if vals else float("nan"), "n_seeds": len(vals)}
+    return out
+
+
+def versions() -> dict:
+    """Versions of everything that produced the numbers (missing packages are None)."""
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in ("sparself", "torch", "numpy", "pycolmap", "kornia", "cv2", "skimage"):
+        try:
+            mod = __import__(name)
+            out[name] = getattr(mod, "__version__", None)
+        except Exception:
+            out[name] = None
+    try:
+        out["git_commit"] = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True,
+            text=True, timeout=10).stdout.strip() or None
+    except Exception:
+        out["git_commit"] = None
+    return out
+
+
+# ---- synthesizers and reconstructors ---------------------------------------------------------------
+
+def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
+    """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.train.train`` on the
+    inputs (in a temporary run folder) and returns the bound ``synthesize(scene, targets)``.
+
+    Raises SparselfError when the network package is not importable (the report says so).
+    """
+    try:
+        from .synthesize import synthesizer
+        from .train import TrainConfig, train
+    except ImportError as e:
+        raise SparselfError(f"the sparself network is not available: {e}") from None
+
+    def make(scene: Scene, seed: int) -> SynthFn:
+        import tempfile
+
+        kw = {"seed": seed, "size": cfg.size}
+        if cfg.epochs is not None:
+            kw["epochs"] = cfg.epochs
+        with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
+            run = train(scene, Path(tmp) / "run", TrainConfig(**kw), progress=cfg.progress)
+        return synthesizer(run)
+
+    return make
+
+
+def _baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
+    from .baselines import BASELINES
+
+    unknown = [n for n in names if n not in BASELINES]
+    if unknown:
+        raise ConfigError(f"unknown baseline(s) {unknown}; known: {sorted(BASELINES)}")
+    return {n: BASELINES[n] for n in names}
+
+
+def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
+    """fit(scene) -> renderer for a reconstructor name, with the evaluation's settings applied."""
+    if name == "nerf":
+        from .recon import nerf
+
+        return lambda sc: nerf.fit(sc, steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress)
+    if name == "gsplat":
+        from .recon import gsplat
+
+        return lambda sc: gsplat.fit(sc, seed=cfg.recon_seed, progress=cfg.progress)
+    try:
+        from .recon import RECONSTRUCTORS
+    except ImportError:
+        RECONSTRUCTORS = {}
+    if name in RECONSTRUCTORS:
+        return lambda sc: RECONSTRUCTORS[name](sc)
+    if name == "mpi":
+        from .recon import mpi
+
+        return lambda sc: mpi.fit(sc)
+    raise ConfigError(f"unknown reconstructor {name!r}; known: mpi, nerf, gsplat")
+
+
+# ---- one scene -------------------------------------------------------------------------------------
+
+def _with_images(scene: Scene, extra: list[Frame], images) -> Scene:
+    """scene plus ``extra`` frames carrying in-memory images, sorted by capture index."""
+    from .synthesize import densify_scene
+
+    return densify_scene(scene, list(extra), np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:]))
+
+
+def _preload(scene: Scene) -> Scene:
+    """Decode the (input) images once at the scene's size, so every consumer sees the same pixels."""
+    frames = [replace(f, image=scene.load(i)) for i, f in enumerate(scene.frames)]
+    return replace(scene, frames=frames)
+
+
+def _plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
+    """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints)."""
+    from .plan import PlanConfig, plan_poses
+
+    planned = plan_poses(inputs, PlanConfig(n_mid=cfg.n_mid, n_extra=cfg.n_extra, order="capture"))
+    info: list[dict] = []
+    out: list[Frame] = []
+    between = set(split.between)
+    for f in planned:
+        rec = {"name": f.name, "planned_index": f.index, "truth": None}
+        lo = max([i for i in split.inputs if i <= f.index], default=None)
+        hi = min([i for i in split.inputs if i >= f.index], default=None)
+        if split.kind == "dense" and lo is not None and hi is not None and lo < hi:
+            cands = [i for i in between if lo < i < hi]
+            if cands:
+                j = min(cands, key=lambda i: (abs(i - f.index), i))
+                real = full.frames[j]
+                from .geometry import rotation_angle_deg
+
+                rec.update(truth=j, truth_name=real.name,
+                           snap_move=float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale()),
+                           snap_turn_deg=float(rotation_angle_deg(real.pose.R, f.pose.R)))
+                f = _pose_only(real, name=f"novel_at_{real.name}", synthetic=True)
+        out.append(f)
+        info.append(rec)
+    return out, info
+
+
+def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *,
+                   network: Callable[[Scene, int], SynthFn] | None = None,
+                   reconstructors: dict[str, Callable[[Scene], object]] | None = None,
+                   baselines: dict[str, SynthFn] | None = None) -> dict:
+    """Run the protocol on one scene. Returns the scene's results (JSON-able).
+
+    network: ``make(inputs_scene, seed) -> synthesize`` (default: :func:`network_factory`); None when
+    unavailable is recorded. reconstructors / baselines: override the registries (tests).
+    out_dir: where example images are saved (``examples/<scene>/``); None saves none.
+    """
+    t_start = time.perf_counter()
+    name = Path(scene.source).name if scene.source is not None else scene.meta.get("name", "scene")
+    res: dict = {"name": name, "source": str(scene.source) if scene.source else None, "status": "running",
+                 "notes": [], "timings": {}}
+    frames_sorted = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)
+    full = scene.subset(frames_sorted).resized(cfg.size)
+    full = replace(full, frames=[replace(f, index=float(k)) for k, f in enumerate(full.frames)])
+    split = make_split(len(full), cfg)
+    if len(split.eval) == 0:
+        raise InputError(f"{name}: {len(full)} frames leave no interior frame to hold out")
+    eval_all = split.eval
+    if cfg.max_eval and len(eval_all) > cfg.max_eval:
+        eval_all = [eval_all[p] for p in np.round(np.linspace(0, len(eval_all) - 1, cfg.max_eval)).astype(int)]
+    truth_frames = {i: full.frames[i] for i in eval_all}  # scoring only
+    eval_targets = [_pose_only(full.frames[i]) for i in eval_all]
+    sizes = {i: full.image_size(i) for i in eval_all}
+    res["protocol"] = {
+        "kind": split.kind, "rule": split.rule, "n_frames": len(full),
+        "held_out": [full.frames[i].name for i in split.eval], "held_out_index": split.eval,
+        "scored": [full.frames[i].name for i in eval_all],
+        "inputs": [full.frames[i].name for i in split.inputs], "inputs_index": split.inputs,
+        "image_size": list(full.image_size(0)),
+    }
+    inputs = _preload(full.subset(split.inputs))
+    planned, plan_info = _plan(inputs, split, cfg, full)
+    res["protocol"]["planned"] = plan_info
+    mid_truth = {k: rec["truth"] for k, rec in enumerate(plan_info) if rec["truth"] is not None}
+    res["protocol"]["camera_frames"] = {
+        "inputs": [f.pose.as_vector().tolist() for f in inputs.frames],
+        "held_out": [f.pose.as_vector().tolist() for f in eval_targets],
+        "planned": [f.pose.as_vector().tolist() for f in planned],
+    }
+    ex_dir = None
+    if out_dir is not None and cfg.examples > 0:
+        ex_dir = Path(out_dir) / "examples" / _safe(name)
+        ex_dir.mkdir(parents=True, exist_ok=True)
+        _camera_plot(inputs, planned, eval_targets, ex_dir / "cameras.png", name)
+        res["camera_plot"] = str((ex_dir / "cameras.png").relative_to(out_dir))
+    examples = eval_all[: cfg.examples]
+    res["examples"] = {}
+
+    def score_set(images: np.ndarray, label: str, targets_idx: list[int], frames: dict[int, Frame]) -> list[dict]:
+        rows = []
+        for k, i in enumerate(targets_idx):
+            truth = _load_truth(frames[i], full.image_size(i))
+            row = {"frame": frames[i].name, "index": i, **_score(images[k], truth, cfg.lpips)}
+            rows.append(row)
+            if ex_dir is not None and i in examples and frames is truth_frames:
+                d = ex_dir / _safe(frames[i].name)
+                d.mkdir(exist_ok=True)
+                if not (d / "ground_truth.png").exists():
+                    save_image(d / "ground_truth.png", truth)
+                save_image(d / f"{_safe(label)}.png", images[k])
+                res["examples"].setdefault(frames[i].name, {})["ground_truth"] = \
+                    str((d / "ground_truth.png").relative_to(out_dir))
+                res["examples"][frames[i].name][label] = str((d / f"{_safe(label)}.png").relative_to(out_dir))
+        return rows
+
+    # ---- 1. view synthesis ----------------------------------------------------------------------
+    vs: dict = {}
+    mids: dict = {}
+    mid_idx = list(mid_truth.values())
+    mid_targets = [planned[k] for k in mid_truth]
+    mid_frames = {i: full.frames[i] for i in mid_idx}
+    synth_planned: dict[str, np.ndarray] = {}
+    t0 = time.perf_counter()
+    if network is None:
+        try:
+            network = network_factory(cfg)
+        except SparselfError as e:
+            res["notes"].append(str(e))
+    if network is not None:
+        per_seed, per_seed_mid = [], []
+        for seed in tqdm(range(cfg.seeds), desc=f"{name}: network seeds", disable=not cfg.progress, leave=False):
+            synth = network(inputs, seed)
+            imgs = synth(inputs, eval_targets)
+            rows = score_set(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, eval_all, truth_frames)
+            per_seed.append({"seed": seed, "frames": rows, "summary": _summary(rows)})
+            synth_planned[f"{NETWORK}#{seed}"] = synth(inputs, planned)
+            if mid_idx:
+                pimgs = synth_planned[f"{NETWORK}#{seed}"]
+                mrows = score_set(pimgs[list(mid_truth)], NETWORK, mid_idx, mid_frames)
+                per_seed_mid.append({"seed": seed, "frames": mrows, "summary": _summary(mrows)})
+        vs[NETWORK] = {"per_seed": per_seed, "summary": _over_seeds(per_seed)}
+        if per_seed_mid:
+            mids[NETWORK] = {"per_seed": per_seed_mid, "summary": _over_seeds(per_seed_mid)}
+    res["timings"]["network"] = time.perf_counter() - t0
+    bl = baselines if baselines is not None else _baseline_fns(cfg.baselines)
+    t0 = time.perf_counter()
+    for bname, fn in tqdm(list(bl.items()), desc=f"{name}: baselines", disable=not cfg.progress, leave=False):
+        try:
+            imgs = fn(inputs, eval_targets)
+            rows = score_set(imgs, bname, eval_all, truth_frames)
+            vs[bname] = {"frames": rows, "summary": _summary(rows)}
+            if bname in cfg.densify_baselines or mid_idx:
+                synth_planned[bname] = fn(inputs, planned)
+            if mid_idx:
+                mrows = score_set(synth_planned[bname][list(mid_truth)], bname, mid_idx, mid_frames)
+                mids[bname] = {"frames": mrows, "summary": _summary(mrows)}
+        except Exception as e:  # one broken baseline must not hide the others
+            log.warning("%s: baseline %s failed: %s", name, bname, e)
+            vs[bname] = {"error": f"{type(e).__name__}: {e}"}
+    res["timings"]["baselines"] = time.perf_counter() - t0
+    res["view_synthesis"] = vs
+    res["midpoints"] = mids
+
+    # ---- 2. densification -----------------------------------------------------------------------
+    dens: dict = {}
+    recs = reconstructors if reconstructors is not None else {}
+    for rname in cfg.reconstructors if reconstructors is None else list(recs):
+        t0 = time.perf_counter()
+        entry: dict = {}
+        dens[rname] = entry
+        try:
+            fit = recs[rname] if rname in recs else reconstructor(rname, cfg)
+            runs: list[tuple[str, Scene]] = [("base", inputs)]
+            net_keys = sorted(k for k in synth_planned if k.startswith(f"{NETWORK}#"))
+            for k in net_keys:
+                runs.append((k, _with_images(inputs, planned, synth_planned[k])))
+            for b in cfg.densify_baselines:
+                if b in synth_planned:
+                    runs.append((b, _with_images(inputs, planned, synth_planned[b])))
+            if cfg.oracle and split.kind == "dense" and mid_truth:
+                fill = synth_planned.get(f"{NETWORK}#0")
+                imgs, extra = [], []
+                for k, f in enumerate(planned):
+                    if k in mid_truth:
+                        # a real, non-held-out photo at exactly this pose (not an evaluation frame)
+                        imgs.append(full.load(mid_truth[k]))
+                        extra.append(f)
+                    elif fill is not None:
+                        imgs.append(fill[k])
+                        extra.append(f)
+                runs.append(("oracle", _with_images(inputs, extra, imgs)))
+            for key, sc in tqdm(runs, desc=f"{name}: {rname} fits", disable=not cfg.progress, leave=False):
+                renderer = fit(sc)
+                imgs = np.stack([renderer.render(t.pose, full.cameras[t.camera_id]) for t in eval_targets])
+                label = f"{rname} {len(sc)} views ({key.replace('#', ' seed ')})"
+                rows = score_set(imgs, label, eval_all, truth_frames)
+                run = {"views": len(sc), "frames": rows, "summary": _summary(rows)}
+                if key.startswith(f"{NETWORK}#"):
+                    entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append({"seed": int(key.split("#")[1]), **run})
+                else:
+                    entry[key] = run
+            if NETWORK in entry:
+                entry[NETWORK]["summary"] = _over_seeds(entry[NETWORK]["per_seed"])
+                entry[NETWORK]["views"] = entry[NETWORK]["per_seed"][0]["views"]
+            if "oracle" in entry and NETWORK in entry:
+                b = entry["base"]["summary"]["psnr"]["mean"]
+                o = entry["oracle"]["summary"]["psnr"]["mean"]
+                s = entry[NETWORK]["summary"]["psnr"]["mean"]
+                # a share of a gain the oracle does not show is noise, not a fraction
+                entry["oracle_share"] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
+                entry["oracle_gain_db"] = float(o - b)
+            entry["status"] = "ok"
+        except Exception as e:
+            log.warning("%s: reconstructor %s failed: %s", name, rname, e)
+            entry["status"] = "failed"
+            entry["error"] = f"{type(e).__name__}: {e}"
+        entry["seconds"] = time.perf_counter() - t0
+    res["densification"] = dens
+    res["status"] = "ok"
+    res["timings"]["total"] = time.perf_counter() - t_start
+    return res
+
+
+def _camera_plot(inputs: Scene, planned: list[Frame], held: list[Frame], path: Path, name: str) -> None:
+    try:
+        from .plot import plot_cameras
+
+        plot_cameras(inputs, planned, held, path=path, title=f"{name}: inputs, planned (synthesized), held-out")
+    except Exception as e:  # a missing plot is not worth failing the evaluation
+        log.warning("camera plot failed: %s", e)
+
+
+# ---- many scenes -----------------------------------------------------------------------------------
+
+def read_manifest(path: Path) -> list[Path]:
+    """Scene paths listed one per line (blank lines and # comments ignored; relative to the file)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: manifest not found")
+    out = []
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            p = Path(line)
+            out.append(p if p.is_absolute() else path.parent / p)
+    if not out:
+        raise InputError(f"{path}: manifest lists no scenes")
+    return out
+
+
+def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Path | None = None, **hooks) -> dict:
+    """Evaluate every scene (paths are read with sparself.io.read_scene); failures are recorded.
+
+    Returns {"settings", "scenes": [...], "not_run": {...}}. hooks are passed to :func:`evaluate_scene`.
+    """
+    cfg.validate()
+    from . import metrics
+
+    try:
+        from .recon.gsplat import available as gs_available
+
+        gs_ok, gs_why = gs_available()
+    except Exception as e:
+        gs_ok, gs_why = False, str(e)
+    results: dict = {
+        "settings": {**dataclasses.asdict(cfg), "versions": versions(),
+                     "lpips_status": metrics.lpips_status() if cfg.lpips else "unavailable: disabled by settings"},
+        "not_run": {"dietnerf": DIETNERF_NOTE},
+        "scenes": [],
+    }
+    if not gs_ok:
+        results["not_run"]["gsplat"] = f"not run: {gs_why}"
+    if hooks.get("reconstructors") is not None:
+        results["settings"]["reconstructors"] = list(hooks["reconstructors"])
+    if not gs_ok and "gsplat" in cfg.reconstructors:
+        cfg = replace(cfg, reconstructors=tuple(r for r in cfg.reconstructors if r != "gsplat"))
+    for item in tqdm(list(scenes), desc="scenes", disable=not cfg.progress):
+        label = str(item) if not isinstance(item, Scene) else str(item.source or item.meta.get("name", "scene"))
+        try:
+            if isinstance(item, Scene):
+                scene = item
+            else:
+                from .io import read_scene
+
+                scene = read_scene(Path(item))
+            results["scenes"].append(evaluate_scene(scene, cfg, out_dir, **hooks))
+        except Exception as e:
+            log.error("%s: evaluation failed: %s", label, e)
+            results["scenes"].append({"name": Path(label).name, "source": label, "status": "failed",
+                                      "error": f"{type(e).__name__}: {e}",
+                                      "traceback": traceback.format_exc(limit=5)})
+    return results
+
+
+def evaluate(scenes: Sequence[Scene | Path], out: Path, cfg: EvalConfig | None = None, *,
+             overwrite: bool = False, **hooks) -> dict:
+    """Run the protocol and write ``results.json``, ``report.md``, ``report.html`` and figures to ``out``
+    (atomically: nothing is left there if it fails). Returns the results."""
+    from .outputs import atomic_dir
+    from .report import write_report
+
+    cfg = cfg or EvalConfig()
+    cfg.validate()
+    with atomic_dir(Path(out), overwrite) as tmp:
+        results = run_evaluation(scenes, cfg, tmp, **hooks)
+        (tmp / "results.json").write_text(json.dumps(_jsonable(results), indent=1, allow_nan=True))
+        write_report(results, tmp)
+    return results
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None, *, inputs: int | None = None,
+            size: int | None = None, seeds: int | None = None, recon: str | None = None,
+            epochs: int | None = None, quick: bool = False, overwrite: bool = False) -> dict:
+    """What ``sparself evaluate`` does: gather scenes (arguments + manifest) and call :func:`evaluate`.
+
+    Options left as None keep the defaults of :class:`EvalConfig` (or of :meth:`EvalConfig.quick`).
+    """
+    paths = [Path(p) for p in scene_paths] + (read_manifest(manifest) if manifest else [])
+    if not paths:
+        raise InputError("no scenes given (pass scene folders or --manifest FILE)")
+    cfg = EvalConfig.quick() if quick else EvalConfig()
+    given = dict(inputs=inputs, size=size, seeds=seeds, epochs=epochs,
+                 reconstructors=tuple(r.strip() for r in recon.split(",") if r.strip()) if recon else None)
+    cfg = replace(cfg, **{k: v for k, v in given.items() if v is not None})
+    return evaluate(paths, out, cfg, overwrite=overwrite)

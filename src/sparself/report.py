@@ -1,0 +1,450 @@
+"""The evaluation report: ``report.md`` + ``report.html`` + PNG figures from :mod:`sparself.evaluate` results.
+
+Tables follow the paper's Tables 1-3 (per scene and average, N vs N + synthesized views, with the
+change), plus the baselines, the oracle and the share of the oracle's gain. An LPIPS cell shows
+"unavailable" whenever the LPIPS weights were not found: a number is never printed for it then.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+METRICS = (("psnr", "PSNR (dB) ↑"), ("ssim", "SSIM ↑"), ("lpips", "LPIPS ↓"))
+NETWORK = "sparself"
+UNAVAILABLE = "unavailable"
+
+
+# ---- document model: a list of blocks rendered to both Markdown and HTML ---------------------------
+
+class _Doc:
+    def __init__(self) -> None:
+        self.blocks: list[tuple] = []
+
+    def h(self, level: int, text: str) -> None:
+        self.blocks.append(("h", level, text))
+
+    def p(self, text: str) -> None:
+        self.blocks.append(("p", text))
+
+    def ul(self, items: list[str]) -> None:
+        self.blocks.append(("ul", items))
+
+    def table(self, header: list[str], rows: list[list[str]]) -> None:
+        self.blocks.append(("table", header, rows))
+
+    def img(self, path: str, alt: str) -> None:
+        self.blocks.append(("img", path, alt))
+
+    def markdown(self) -> str:
+        out = []
+        for b in self.blocks:
+            if b[0] == "h":
+                out.append("#" * b[1] + " " + b[2])
+            elif b[0] == "p":
+                out.append(b[1])
+            elif b[0] == "ul":
+                out.append("\n".join(f"- {x}" for x in b[1]))
+            elif b[0] == "table":
+                header, rows = b[1], b[2]
+                lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+                lines += ["| " + " | ".join(r) + " |" for r in rows]
+                out.append("\n".join(lines))
+            elif b[0] == "img":
+                out.append(f"![{b[2]}]({b[1]})")
+        return "\n\n".join(out) + "\n"
+
+    def html(self, title: str) -> str:
+        e = html.escape
+        out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(title)}</title>",
+               "<style>body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
+               "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 7px;"
+               "text-align:right}th{background:#eee}td:first-child{text-align:left}img{max-width:100%}</style>"
+               "</head><body>"]
+        for b in self.blocks:
+            if b[0] == "h":
+                out.append(f"<h{b[1]}>{e(b[2])}</h{b[1]}>")
+            elif b[0] == "p":
+                out.append(f"<p>{e(b[1])}</p>")
+            elif b[0] == "ul":
+                out.append("<ul>" + "".join(f"<li>{e(x)}</li>" for x in b[1]) + "</ul>")
+            elif b[0] == "table":
+                rows = "".join("<tr>" + "".join(f"<td>{e(c)}</td>" for c in r) + "</tr>" for r in b[2])
+                out.append("<table><tr>" + "".join(f"<th>{e(c)}</th>" for c in b[1]) + "</tr>" + rows + "</table>")
+            elif b[0] == "img":
+                out.append(f"<p><img src='{e(b[1])}' alt='{e(b[2])}'></p>")
+        out.append("</body></html>")
+        return "\n".join(out)
+
+
+# ---- formatting ------------------------------------------------------------------------------------
+
+def lpips_available(results: dict) -> bool:
+    return str(results.get("settings", {}).get("lpips_status", "")).startswith("available")
+
+
+def _num(v) -> float | None:
+    if v is None:
+        return None
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def fmt(metric: str, value, std=None, *, lpips_ok: bool = True) -> str:
+    """A table cell. LPIPS without weights is always "unavailable"; missing numbers are "–"."""
+    if metric == "lpips" and not lpips_ok:
+        return UNAVAILABLE
+    v = _num(value)
+    if v is None:
+        return UNAVAILABLE if metric == "lpips" else "–"
+    digits = 2 if metric == "psnr" else 3
+    s = f"{v:.{digits}f}"
+    sd = _num(std)
+    if sd is not None:
+        s += f" ± {sd:.{digits}f}"
+    return s
+
+
+def _mean_of(entry: dict | None, metric: str) -> tuple[float | None, float | None]:
+    """(mean, std-over-seeds or None) of a result entry's summary for a metric."""
+    if not entry or "summary" not in entry:
+        return None, None
+    s = entry["summary"].get(metric, {})
+    std = s.get("std") if "n_seeds" in s else None
+    return _num(s.get("mean")), (_num(std) if "n_seeds" in s and s.get("n_seeds", 0) > 1 else None)
+
+
+def _avg(vals: list) -> float | None:
+    v = [x for x in vals if x is not None]
+    return float(np.mean(v)) if v else None
+
+
+def _change(a, b, metric: str, lpips_ok: bool) -> str:
+    if metric == "lpips" and not lpips_ok:
+        return UNAVAILABLE
+    if a is None or b is None:
+        return "–"
+    d = b - a
+    return f"{d:+.{2 if metric == 'psnr' else 3}f}"
+
+
+# ---- figures ---------------------------------------------------------------------------------------
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _bar_chart(path: Path, title: str, groups: list[str], series: dict[str, list], ylabel: str) -> None:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(max(5, 1.6 * len(groups) + 2), 3.6), dpi=100)
+    try:
+        width = 0.8 / max(len(series), 1)
+        x = np.arange(len(groups))
+        for k, (label, vals) in enumerate(series.items()):
+            v = [np.nan if a is None else a for a in vals]
+            ax.bar(x + (k - (len(series) - 1) / 2) * width, v, width, label=label)
+        ax.set_xticks(x)
+        ax.set_xticklabels(groups, rotation=15, fontsize=8)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+
+
+def _image_grid(out_dir: Path, path: Path, images: dict[str, str]) -> bool:
+    """Ground truth, then each prediction with its error map (|pred - truth| averaged over channels)."""
+    from .scene import load_image
+
+    if "ground_truth" not in images:
+        return False
+    gt = load_image(out_dir / images["ground_truth"], warn=False)
+    preds = [(k, load_image(out_dir / v, warn=False)) for k, v in images.items() if k != "ground_truth"]
+    plt = _plt()
+    n = len(preds) + 1
+    fig, axes = plt.subplots(2, n, figsize=(2.2 * n, 4.6), dpi=100, squeeze=False)
+    try:
+        axes[0, 0].imshow(gt)
+        axes[0, 0].set_title("ground truth (held out)", fontsize=7)
+        axes[1, 0].axis("off")
+        for k, (label, img) in enumerate(preds, start=1):
+            axes[0, k].imshow(np.clip(img, 0, 1))
+            err = np.abs(img - gt).mean(-1) if img.shape == gt.shape else np.zeros(gt.shape[:2])
+            mse = float(np.mean((img - gt) ** 2)) if img.shape == gt.shape else float("nan")
+            axes[0, k].set_title(label, fontsize=7)
+            axes[1, k].imshow(err, cmap="inferno", vmin=0, vmax=0.5)
+            axes[1, k].set_title(f"|error| (PSNR {-10 * np.log10(max(mse, 1e-12)):.1f})", fontsize=7)
+        for a in axes.ravel():
+            a.set_xticks([])
+            a.set_yticks([])
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+    return True
+
+
+# ---- the report ------------------------------------------------------------------------------------
+
+def _recon_names(scenes: list[dict]) -> list[str]:
+    names: list[str] = []
+    for s in scenes:
+        for r in s.get("densification", {}):
+            if r not in names:
+                names.append(r)
+    return names
+
+
+def _label(s: dict, r: str | None = None) -> str:
+    """Scene label with its view counts, e.g. 'llff_bird (25→35)'."""
+    if r is not None:
+        d = s.get("densification", {}).get(r, {})
+        n0 = d.get("base", {}).get("views")
+        n1 = d.get(NETWORK, {}).get("views")
+        if n0 and n1:
+            return f"{s['name']} ({n0}→{n1})"
+    return s["name"]
+
+
+def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
+    """Write ``report.md``, ``report.html`` and figures (``figures/*.png``) into ``out_dir``."""
+    out_dir = Path(out_dir)
+    fig_dir = out_dir / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    settings = results.get("settings", {})
+    lp = lpips_available(results)
+    scenes_all = results.get("scenes", [])
+    ok = [s for s in scenes_all if s.get("status") == "ok"]
+    failed = [s for s in scenes_all if s.get("status") != "ok"]
+    recons = _recon_names(ok)
+    doc = _Doc()
+    doc.h(1, "sparself evaluation report")
+    doc.h(2, "Protocol")
+    doc.p("Every number in this report is measured against real photos that were held out before anything "
+          "else happened. Held-out images are never seen by network training, view synthesis or 3D "
+          "reconstruction: only their camera poses are used, to render the views that are compared with them; "
+          "their pixels are decoded only in the scoring step (scene readers may read image headers for sizes).")
+    doc.ul([
+        f"Dense captures: every {settings.get('holdout_every', 8)}th interior frame is held out (LLFF-style, "
+        f"first and last frames excluded); N = {settings.get('inputs', 25)} evenly spaced frames of the rest are "
+        "the sparse input. Planned midpoints are snapped to the real (non-held-out) photo nearest the planned "
+        "pose in their gap, which is the ground truth for midpoint view synthesis and the oracle's training image.",
+        f"Sparse captures (too few frames for the above, e.g. 16-view Middlebury rings): every "
+        f"{settings.get('sparse_holdout_every', 2)}nd interior frame, from the second on, is held out and the rest are "
+        "the inputs. No oracle is run there (the only real frames between inputs are the held-out ones).",
+        f"Densification: each reconstructor is fitted on the N inputs and on N + {settings.get('n_mid', 8)} "
+        f"midpoints + {settings.get('n_extra', 2)} extrapolations synthesized by sparself (per seed) and by the "
+        "densify baselines; all render the held-out poses.",
+        "Oracle: the same reconstruction with the real photos at the snapped midpoint poses (extrapolations "
+        "keep sparself's seed-0 views, as no real photo exists there). Share of oracle gain = "
+        "(PSNR(N+synth) − PSNR(N)) / (PSNR(oracle) − PSNR(N)).",
+        f"sparself numbers are mean ± std over {settings.get('seeds', 3)} network seed(s) of the per-scene means.",
+    ])
+    for s in ok:
+        doc.p(f"{s['name']}: {s['protocol']['rule']}. Held out: {', '.join(s['protocol']['held_out'])}; "
+              f"scored: {len(s['protocol']['scored'])}; inputs: {', '.join(s['protocol']['inputs'])}.")
+
+    doc.h(2, "Not run")
+    nr = dict(results.get("not_run", {}))
+    nr.setdefault("dietnerf", "not run: needs CLIP weights that cannot be fetched here")
+    items = [f"{k}: {v}" for k, v in nr.items()]
+    items.append(f"LPIPS: {settings.get('lpips_status', 'unavailable')}")
+    for s in ok:
+        items += [f"{s['name']}: {n}" for n in s.get("notes", [])]
+        for r, d in s.get("densification", {}).items():
+            if d.get("status") == "failed":
+                items.append(f"{s['name']} / {r}: failed: {d.get('error')}")
+    doc.ul(items)
+
+    # ---- Tables 1-3 shape -------------------------------------------------------------------------
+    doc.h(2, "Densification: N input views vs N + synthesized views (the paper's Tables 1–3)")
+    for metric, mlabel in METRICS:
+        header = ["Scene"]
+        for r in recons:
+            header += [f"{r} N", f"{r} N+synth", f"{r} change"]
+        rows, cols = [], {r: ([], []) for r in recons}
+        for s in ok:
+            row = [s["name"]]
+            for r in recons:
+                d = s["densification"].get(r, {})
+                a, _ = _mean_of(d.get("base"), metric)
+                b, sd = _mean_of(d.get(NETWORK), metric)
+                cols[r][0].append(a)
+                cols[r][1].append(b)
+                row += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, sd, lpips_ok=lp), _change(a, b, metric, lp)]
+            rows.append(row)
+        avg = ["Average"]
+        for r in recons:
+            a, b = _avg(cols[r][0]), _avg(cols[r][1])
+            avg += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, lpips_ok=lp), _change(a, b, metric, lp)]
+        rows.append(avg)
+        doc.h(3, mlabel)
+        doc.table(header, rows)
+
+    for r in recons:
+        doc.h(3, f"{r}: sparself vs baselines vs oracle (densification)")
+        keys = []
+        for s in ok:
+            for k in s["densification"].get(r, {}):
+                if k not in keys and isinstance(s["densification"][r][k], dict) and "summary" in s["densification"][r][k]:
+                    keys.append(k)
+        order = ["base", NETWORK] + [k for k in keys if k not in ("base", NETWORK, "oracle")] + ["oracle"]
+        order = [k for k in order if k in keys]
+        names = {"base": "N only", NETWORK: "N + sparself", "oracle": "N + real (oracle)"}
+        for metric, mlabel in METRICS:
+            header = ["Scene"] + [names.get(k, f"N + {k}") for k in order] + (["share of oracle gain"] if metric == "psnr" else [])
+            rows = []
+            for s in ok:
+                d = s["densification"].get(r, {})
+                row = [_label(s, r)] + [fmt(metric, *_mean_of(d.get(k), metric), lpips_ok=lp) for k in order]
+                if metric == "psnr":
+                    sh, gain = _num(d.get("oracle_share")), _num(d.get("oracle_gain_db"))
+                    row.append(f"{100 * sh:.0f}%" if sh is not None else
+                               (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–"))
+                rows.append(row)
+            doc.p(mlabel)
+            doc.table(header, rows)
+
+    # ---- view synthesis ---------------------------------------------------------------------------
+    doc.h(2, "View synthesis at held-out poses (sparself vs baselines)")
+    methods: list[str] = []
+    for s in ok:
+        for k, v in s.get("view_synthesis", {}).items():
+            if k not in methods and "summary" in v:
+                methods.append(k)
+    for metric, mlabel in METRICS:
+        rows, cols = [], {m: [] for m in methods}
+        for s in ok:
+            row = [s["name"]]
+            for m in methods:
+                a, sd = _mean_of(s["view_synthesis"].get(m), metric)
+                cols[m].append(a)
+                row.append(fmt(metric, a, sd, lpips_ok=lp))
+            rows.append(row)
+        rows.append(["Average"] + [fmt(metric, _avg(cols[m]), lpips_ok=lp) for m in methods])
+        doc.p(mlabel)
+        doc.table(["Scene"] + methods, rows)
+    if any(s.get("midpoints") for s in ok):
+        doc.h(3, "View synthesis at midpoint poses (real photos between inputs; dense captures only)")
+        for metric, mlabel in METRICS:
+            rows = []
+            for s in ok:
+                if s.get("midpoints"):
+                    rows.append([s["name"]] + [fmt(metric, *_mean_of(s["midpoints"].get(m), metric), lpips_ok=lp)
+                                               for m in methods])
+            doc.p(mlabel)
+            doc.table(["Scene"] + methods, rows)
+
+    # ---- figures ----------------------------------------------------------------------------------
+    doc.h(2, "Figures")
+    for metric, mlabel in METRICS:
+        if metric == "lpips" and not lp:
+            continue
+        groups = [s["name"] for s in ok]
+        series = {}
+        for r in recons:
+            series[f"{r} N"] = [_mean_of(s["densification"].get(r, {}).get("base"), metric)[0] for s in ok]
+            series[f"{r} N+synth"] = [_mean_of(s["densification"].get(r, {}).get(NETWORK), metric)[0] for s in ok]
+        if groups and series:
+            p = fig_dir / f"densification_{metric}.png"
+            _bar_chart(p, f"Densification: {mlabel}", groups, series, mlabel)
+            doc.img(str(p.relative_to(out_dir)), f"densification {metric}")
+        vseries = {m: [_mean_of(s["view_synthesis"].get(m), metric)[0] for s in ok] for m in methods}
+        if groups and vseries:
+            p = fig_dir / f"view_synthesis_{metric}.png"
+            _bar_chart(p, f"View synthesis at held-out poses: {mlabel}", groups, vseries, mlabel)
+            doc.img(str(p.relative_to(out_dir)), f"view synthesis {metric}")
+    for s in ok:
+        if s.get("camera_plot"):
+            doc.p(f"{s['name']}: cameras (inputs, planned/synthesized poses, held-out poses)")
+            doc.img(s["camera_plot"], f"{s['name']} cameras")
+        for frame, imgs in s.get("examples", {}).items():
+            p = fig_dir / f"grid_{safe_name(s['name'])}_{safe_name(Path(frame).stem)}.png"
+            try:
+                if _image_grid(out_dir, p, imgs):
+                    doc.p(f"{s['name']}, held-out frame {frame}: ground truth, predictions and error maps")
+                    doc.img(str(p.relative_to(out_dir)), f"{s['name']} {frame}")
+            except Exception as e:  # a broken figure must not lose the tables
+                log.warning("image grid for %s failed: %s", frame, e)
+
+    # ---- conclusions, settings, failures ------------------------------------------------------------
+    doc.h(2, "What the numbers say")
+    doc.ul(conclusions(results))
+    if failed:
+        doc.h(2, "Scenes that failed")
+        doc.table(["Scene", "Error"], [[s.get("name", "?"), str(s.get("error", ""))] for s in failed])
+    doc.h(2, "Settings")
+    flat = {k: v for k, v in settings.items() if k != "versions"}
+    doc.table(["Setting", "Value"], [[k, str(v)] for k, v in flat.items()])
+    doc.table(["Package", "Version"], [[k, str(v)] for k, v in settings.get("versions", {}).items()])
+    timing_rows = [[s["name"]] + [f"{s['timings'].get(k, float('nan')):.1f}" for k in ("network", "baselines", "total")]
+                   for s in ok]
+    if timing_rows:
+        doc.p("Wall-clock seconds (on a CPU shared with other jobs: inflated by contention).")
+        doc.table(["Scene", "network", "baselines", "total"], timing_rows)
+
+    md = out_dir / "report.md"
+    md.write_text(doc.markdown())
+    page = out_dir / "report.html"
+    page.write_text(doc.html("sparself evaluation report"))
+    return md, page
+
+
+def conclusions(results: dict) -> list[str]:
+    """Plain sentences: does N + synth beat N (per reconstructor), does sparself beat the baselines."""
+    ok = [s for s in results.get("scenes", []) if s.get("status") == "ok"]
+    out = []
+    for r in _recon_names(ok):
+        pairs = [(_mean_of(s["densification"][r].get("base"), "psnr")[0],
+                  _mean_of(s["densification"][r].get(NETWORK), "psnr")[0]) for s in ok if r in s["densification"]]
+        pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+        if not pairs:
+            out.append(f"{r}: no densification result.")
+            continue
+        wins = sum(b > a for a, b in pairs)
+        d = float(np.mean([b - a for a, b in pairs]))
+        verdict = "beats" if d > 0 else "does not beat"
+        out.append(f"{r}: N + sparself views {verdict} N views on average by PSNR ({d:+.2f} dB; better on "
+                   f"{wins} of {len(pairs)} scenes).")
+        for k in sorted({k for s in ok for k, v in s["densification"].get(r, {}).items()
+                         if isinstance(v, dict) and "summary" in v} - {"base", NETWORK}):
+            diffs = [_mean_of(s["densification"][r].get(NETWORK), "psnr")[0] - _mean_of(s["densification"][r][k], "psnr")[0]
+                     for s in ok if r in s["densification"] and k in s["densification"][r]
+                     and _mean_of(s["densification"][r].get(NETWORK), "psnr")[0] is not None
+                     and _mean_of(s["densification"][r][k], "psnr")[0] is not None]
+            if diffs:
+                who = "the real photos (oracle)" if k == "oracle" else f"{k}-synthesized views"
+                out.append(f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average.")
+    vs = [(s["name"], s.get("view_synthesis", {})) for s in ok]
+    for name, v in vs:
+        net, _ = _mean_of(v.get(NETWORK), "psnr")
+        base = {k: _mean_of(e, "psnr")[0] for k, e in v.items() if k != NETWORK and "summary" in e}
+        base = {k: x for k, x in base.items() if x is not None}
+        if net is None or not base:
+            continue
+        best = max(base, key=base.get)
+        rel = "beats" if net > base[best] else "does not beat"
+        out.append(f"{name}: view synthesis: sparself ({net:.2f} dB) {rel} the best baseline, {best} "
+                   f"({base[best]:.2f} dB).")
+    return out or ["No scene produced results."]
+
+
+def safe_name(name: str) -> str:
+    """A file-name-safe version of a scene or frame name."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)

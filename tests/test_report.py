@@ -1,0 +1,88 @@
+"""The report: paper-shaped tables, LPIPS never printed as a number without weights, failures listed."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from sparself.report import conclusions, fmt, write_report
+
+
+def _summary(psnr, ssim, lpips, seeds=None):
+    def one(v):
+        if seeds:
+            return {"mean": v, "std": 0.1, "n_seeds": seeds}
+        return {"mean": v, "std": 0.0, "min": v, "max": v, "n": 0 if v is None else 3, "n_inf": 0}
+    return {"psnr": one(psnr), "ssim": one(ssim), "lpips": one(lpips)}
+
+
+def _results(lpips_status: str, lp_value):
+    scene = {
+        "name": "toy", "status": "ok", "notes": [], "timings": {"network": 1.0, "baselines": 2.0, "total": 3.0},
+        "protocol": {"rule": "dense: ...", "held_out": ["a.png"], "scored": ["a.png"], "inputs": ["b.png"]},
+        "view_synthesis": {"sparself": {"summary": _summary(24.0, 0.8, lp_value, seeds=3)},
+                           "blend": {"summary": _summary(23.0, 0.7, lp_value)}},
+        "midpoints": {},
+        "densification": {"mpi": {
+            "status": "ok",
+            "base": {"views": 25, "summary": _summary(20.0, 0.6, lp_value)},
+            "sparself": {"views": 35, "summary": _summary(21.5, 0.65, lp_value, seeds=3)},
+            "oracle": {"views": 35, "summary": _summary(23.0, 0.7, lp_value)},
+            "oracle_share": 0.5, "oracle_gain_db": 3.0,
+        }},
+    }
+    return {"settings": {"inputs": 25, "seeds": 3, "lpips_status": lpips_status, "versions": {"torch": "x"}},
+            "not_run": {"dietnerf": "not run: needs CLIP weights that cannot be fetched here"},
+            "scenes": [scene, {"name": "broken", "status": "failed", "error": "InputError: x.png: not an image"}]}
+
+
+def _lpips_rows(md: str) -> list[str]:
+    """Table rows under every LPIPS heading/caption."""
+    rows, on = [], False
+    for line in md.splitlines():
+        if "LPIPS ↓" in line:
+            on = True
+        elif line.startswith("#") or (line and not line.startswith("|") and on):
+            on = "LPIPS ↓" in line
+        elif on and line.startswith("| ") and not line.startswith("| Scene"):
+            rows.append(line)
+    return rows
+
+
+def test_lpips_is_never_a_number_when_unavailable(tmp_path):
+    # even if a value slipped into the results, no weights means no number
+    write_report(_results("unavailable: weights not found", 0.25), tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    rows = _lpips_rows(md)
+    assert rows, "no LPIPS table found"
+    for r in rows:
+        cells = [c.strip() for c in r.strip("|").split("|")[1:]]
+        assert cells and all(c == "unavailable" for c in cells), r
+    assert "0.250" not in md
+    html = (tmp_path / "report.html").read_text()
+    assert "0.250" not in html and "unavailable" in html
+    assert not (tmp_path / "figures" / "densification_lpips.png").exists()
+
+
+def test_lpips_numbers_printed_when_available_and_tables_shaped_like_the_paper(tmp_path):
+    write_report(_results("available: LPIPS v0.1 AlexNet (a, b)", 0.25), tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    assert "| Scene | mpi N | mpi N+synth | mpi change |" in md
+    assert re.search(r"\| toy \| 20\.00 \| 21\.50 ± 0\.10 \| \+1\.50 \|", md)
+    assert "| Average | 20.00 | 21.50 | +1.50 |" in md
+    assert "| toy | 0.250 | 0.250 ± 0.100 | +0.000 |" in md
+    assert "| toy (25→35) | 20.00 | 21.50 ± 0.10 | 23.00 | 50% |" in md
+    assert "dietnerf: not run: needs CLIP weights" in md
+    assert "Scenes that failed" in md and "x.png: not an image" in md
+    assert (tmp_path / "figures" / "densification_psnr.png").stat().st_size > 1000
+    assert (tmp_path / "report.html").read_text().count("<table>") >= 6
+
+
+def test_fmt_and_conclusions():
+    assert fmt("psnr", 21.456) == "21.46" and fmt("ssim", 0.5, 0.01) == "0.500 ± 0.010"
+    assert fmt("lpips", None) == "unavailable" and fmt("lpips", 0.2, lpips_ok=False) == "unavailable"
+    assert fmt("psnr", float("nan")) == "–" and fmt("psnr", np.inf) == "–"
+    text = " ".join(conclusions(_results("unavailable", None)))
+    assert "mpi: N + sparself views beats N views on average by PSNR (+1.50 dB" in text
+    assert "sparself (24.00 dB) beats the best baseline, blend (23.00 dB)" in text
