@@ -14,6 +14,7 @@ from PIL import Image
 from sparself.cli import main
 
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "bird"
+SHARED_BIRD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "llff_bird"
 
 
 def run(capsys, *argv):
@@ -44,6 +45,17 @@ def test_sample_scene_is_what_attribution_says():
     assert np.allclose(pb[:, [4, 9]], [480, 272]) and np.all(np.isfinite(pb))
     assert (SAMPLE / "ATTRIBUTION.md").is_file()
     assert sum(p.stat().st_size for p in SAMPLE.rglob("*") if p.is_file()) < 3_000_000
+
+
+def test_sample_rows_match_the_source_capture():
+    if not (SHARED_BIRD / "poses_bounds.npy").is_file():
+        pytest.skip(f"{SHARED_BIRD} not found")
+    src = np.load(SHARED_BIRD / "poses_bounds.npy")
+    ours = np.load(SAMPLE / "poses_bounds.npy")
+    keep = np.round(np.linspace(0, len(src) - 1, 49)).astype(int)
+    same = [c for c in range(17) if c not in (4, 9, 14)]  # all but hwf
+    assert np.array_equal(ours[:, same], src[keep][:, same])
+    assert np.allclose(ours[:, [4, 9, 14]], src[keep][:, [4, 9, 14]] / 2)
 
 
 def test_info_on_sample(capsys):

@@ -376,5 +376,5 @@ def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: 
         with atomic_file(Path(plot)) as tmp_png:
             plot_cameras(scene, frames, path=tmp_png)
             save_plan(out, frames, scene=scene, cfg=cfg)  # the plot is renamed into place after this
-    log.info("planned %d novel poses for %d views -> %s", len(frames), len(scene), out)
+    log.debug("planned %d novel poses for %d views -> %s", len(frames), len(scene), out)
     return frames
