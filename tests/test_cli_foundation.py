@@ -150,3 +150,14 @@ def test_two_views_cannot_be_planned(tmp_path, capsys, sample_copy):
     lines = error_lines(err)
     assert code != 0 and len(lines) == 1 and "3" in lines[0] and "bird" in lines[0]
     assert not out.exists()
+
+
+def test_unusable_output_paths(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    code, _, err = run(capsys, "plan", SAMPLE, "--out", blocker / "plan.json", "-q")
+    lines = error_lines(err)
+    assert code != 0 and len(lines) == 1 and "a_file" in lines[0]
+    code, _, err = run(capsys, "plan", SAMPLE, "--out", tmp_path / "p.json", "--plot", tmp_path / "c.jpg", "-q")
+    assert code != 0 and ".png" in err and not (tmp_path / "p.json").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]  # no temporary files left behind

@@ -359,6 +359,8 @@ def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: 
     from .io import read_scene
 
     out = Path(out)
+    if plot is not None and Path(plot).suffix.lower() != ".png":
+        raise OutputError(f"{plot}: the camera plot is written as PNG; give a .png file name")
     for p in [out] + ([Path(plot)] if plot is not None else []):
         if p.exists() and not overwrite:
             raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
@@ -368,13 +370,16 @@ def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: 
     cfg.validate()
     scene = read_scene(Path(scene_path))
     frames = plan_poses(scene, cfg)
-    if plot is None:
-        save_plan(out, frames, scene=scene, cfg=cfg)
-    else:
-        from .plot import plot_cameras
+    try:
+        if plot is None:
+            save_plan(out, frames, scene=scene, cfg=cfg)
+        else:
+            from .plot import plot_cameras
 
-        with atomic_file(Path(plot)) as tmp_png:
-            plot_cameras(scene, frames, path=tmp_png)
-            save_plan(out, frames, scene=scene, cfg=cfg)  # the plot is renamed into place after this
+            with atomic_file(Path(plot)) as tmp_png:
+                plot_cameras(scene, frames, path=tmp_png)
+                save_plan(out, frames, scene=scene, cfg=cfg)  # the plot is renamed into place after this
+    except OSError as e:
+        raise OutputError(f"{e.filename or out}: cannot write ({e.strerror or e})") from None
     log.debug("planned %d novel poses for %d views -> %s", len(frames), len(scene), out)
     return frames
