@@ -15,7 +15,7 @@ from sparself.plan import (
     nearest_neighbour_order,
     order_frames,
     plan_poses,
-    reindexed,
+    plan_sequence,
     save_plan,
 )
 from sparself.scene import Camera, Frame, Scene
@@ -140,10 +140,10 @@ def test_nearest_neighbour_order_recovers_a_shuffled_capture():
     b = sorted(tuple(np.round(f.pose.center, 9)) for f in plan_poses(shuffled))
     assert a == b
     # and its indices count positions along the path, matching the re-indexed scene
-    seq = order_frames(shuffled, "auto")
-    ordered = reindexed(shuffled, seq)
+    ordered, targets = plan_sequence(shuffled)
     assert [f.index for f in ordered.frames] == list(range(25))
-    for f in plan_poses(shuffled):
+    assert [f.name for f in ordered.frames] == [shuffled.frames[i].name for i in order_frames(shuffled)]
+    for f in targets:
         if 0 < f.index < 24:
             i = int(f.index)
             assert on_path(f.pose, ordered.frames[i].pose, ordered.frames[i + 1].pose, 0.5)
@@ -153,6 +153,8 @@ def test_indices_follow_the_frames_own_indices():
     scene = arc_scene(13).subset(list(range(0, 13, 2)))  # frames with index 0, 2, ..., 12
     planned = plan_poses(scene, PlanConfig(n_mid=6, n_extra=2))
     assert [f.index for f in planned] == pytest.approx([-0.4, 1, 3, 5, 7, 9, 11, 12.4])
+    sources, _ = plan_sequence(scene)  # capture order: the scene keeps its own indices
+    assert [f.index for f in sources.frames] == [f.index for f in scene.frames]
 
 
 def test_identical_consecutive_poses_do_not_break():

@@ -242,6 +242,19 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     return out
 
 
+def plan_sequence(scene: Scene, cfg: PlanConfig | None = None) -> tuple[Scene, list[Frame]]:
+    """The plan together with the source scene on the same index scale: ``(sources, targets)``.
+
+    ``sources`` is the scene with its frames in path order and their indices as the plan counts them
+    (the scene unchanged for a capture-order plan of a normally indexed scene); use it, not ``scene``,
+    for training and synthesis when the order may be a nearest-neighbour path, so that a target's
+    fractional index sits between the indices of the views it was planned between.
+    """
+    cfg = cfg or PlanConfig()
+    targets = plan_poses(scene, cfg)
+    return reindexed(scene, order_frames(scene, cfg.order)), targets
+
+
 # ---- plan files ----------------------------------------------------------------------------------
 
 def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None,
