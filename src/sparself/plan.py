@@ -23,8 +23,9 @@ Design decisions (documented here because they change which poses come out):
 * **Fractional index.** A planned frame's ``index`` is the LERP of its pair's indices at the same t
   (3.5 between frames 3 and 4; N - 1 + 0.2 past the end; -0.2 before the start). When the frames'
   own indices are not monotonic along the path (a nearest-neighbour path through an unordered set),
-  positions along the path are used instead; :func:`order_frames` gives that path and
-  :func:`reindexed` the scene re-indexed along it, so sources and targets share one index scale.
+  positions along the path are used instead. :func:`plan_sequence` returns the targets together with
+  the scene re-indexed along the path, so sources and targets share one index scale — use it where the
+  order may be a nearest-neighbour path (training and synthesis read the indices).
 
 Cost: the nearest-neighbour path is O(N^2) time and O(N) memory (one distance row at a time), so
 500 views plan in well under a second.
