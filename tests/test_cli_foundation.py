@@ -161,3 +161,19 @@ def test_unusable_output_paths(tmp_path, capsys):
     code, _, err = run(capsys, "plan", SAMPLE, "--out", tmp_path / "p.json", "--plot", tmp_path / "c.jpg", "-q")
     assert code != 0 and ".png" in err and not (tmp_path / "p.json").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]  # no temporary files left behind
+
+
+def test_plot_draws_held_out_views(tmp_path):
+    from sparself.io import read_scene
+    from sparself.plot import plot_cameras
+
+    scene = read_scene(SAMPLE)
+    inputs, held = scene.subset(list(range(0, 49, 2))), [scene.frames[i] for i in range(1, 49, 2)]
+
+    def green(path):
+        rgb = np.asarray(Image.open(path).convert("RGB")).astype(int)
+        return int(np.sum((rgb[..., 1] > 120) & (rgb[..., 0] < 90) & (rgb[..., 2] < 90)))  # tab:green
+
+    plot_cameras(inputs, planned=None, held_out=held, path=tmp_path / "with.png")
+    plot_cameras(inputs, path=tmp_path / "without.png")
+    assert green(tmp_path / "with.png") > 300 and green(tmp_path / "without.png") == 0
