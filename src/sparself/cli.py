@@ -158,5 +158,48 @@ def _run_evaluate(args) -> int:
 _COMMANDS.append(_add_evaluate)
 
 
+def _add_poses(sub) -> None:
+    p = sub.add_parser(
+        "poses", help="recover camera poses and intrinsics from photos (COLMAP via pycolmap)",
+        description="Structure from motion on a folder of photos with pycolmap: SIFT features, exhaustive "
+                    "(or sequential) matching, incremental mapping, with defaults tuned for sparse captures "
+                    "(~25 views). Writes DIR with images/ (copies of the registered photos), sparse/0/ "
+                    "(COLMAP binary), poses_bounds.npy (LLFF), transforms.json (nerfstudio) and "
+                    "sfm_report.json. Prints how many images were registered and names the others; fails "
+                    "if fewer than 3 are registered.")
+    p.add_argument("photos", type=Path, help="folder of photos (one capture, one image size)")
+    p.add_argument("--out", type=Path, required=True, help="output scene folder")
+    p.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive",
+                   help="exhaustive: all pairs (default; best for ~25 views); sequential: neighbours by file "
+                        "name (long video-like captures)")
+    p.add_argument("--max-image-size", type=int, default=0,
+                   help="downscale the longest side to N px for feature extraction (faster); 0 = full size")
+    cam = p.add_mutually_exclusive_group()
+    cam.add_argument("--single-camera", dest="single_camera", action="store_true", default=True,
+                     help="one shared camera for all photos (default)")
+    cam.add_argument("--per-image-camera", dest="single_camera", action="store_false",
+                     help="separate intrinsics per photo (mixed zoom / devices)")
+    p.add_argument("--link-images", action="store_true",
+                   help="symlink the photos into DIR/images instead of copying them")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--seed", type=int, default=0, help="random seed of COLMAP's RANSAC and mapper (default 0)")
+    _common(p)
+    p.set_defaults(func=_run_poses)
+
+
+def _run_poses(args) -> int:
+    from .sfm import SfmConfig, poses_to_folder
+
+    rep = poses_to_folder(args.photos, args.out, SfmConfig(matcher=args.matcher, max_image_size=args.max_image_size,
+                                                           single_camera=args.single_camera, seed=args.seed,
+                                                           debug=args.debug),
+                          overwrite=args.overwrite, images="link" if args.link_images else "copy")
+    print(f"{rep.summary()} -> {args.out}")
+    return 0
+
+
+_COMMANDS.append(_add_poses)
+
+
 if __name__ == "__main__":
     sys.exit(main())
