@@ -27,6 +27,7 @@ BIRD_VIEWS = [f"{i:03d}.jpg" for i in range(1, 71, 7)]
 # Measured (seed 0, deterministic): 10 of 10 registered, rotation error 0.72 deg mean, centres 2.1 % of the
 # scene scale after similarity alignment; other 10-view windows (start 50, 100): 1.6 / 1.4 deg, 5.0 / 3.5 %.
 ROT_TOL_DEG, TRANS_TOL_REL = 2.0, 0.07
+ROTATED = "022.jpg"
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +37,12 @@ def bird_small(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("bird10")
     for n in BIRD_VIEWS:
         (d / n).symlink_to(BIRD / "images" / n)
+    # one phone-style photo: pixels stored sideways, EXIF orientation 6 says "turn 90 degrees clockwise"
+    (d / ROTATED).unlink()
+    with Image.open(BIRD / "images" / ROTATED) as im:
+        exif = Image.Exif()
+        exif[0x0112] = 6
+        im.transpose(Image.Transpose.ROTATE_90).save(d / ROTATED, quality=98, exif=exif)
     return d
 
 
@@ -58,6 +65,10 @@ def test_cli_poses_registers_and_writes_layout(bird_cli_out, bird_small, capsys)
     assert (bird_cli_out / "images" / "001.jpg").read_bytes() == (bird_small / "001.jpg").read_bytes()
     cam = scene.camera(0)
     assert (cam.width, cam.height) == (544, 960)
+    # the EXIF-rotated photo is registered, copied unchanged, and upright as every stage loads it
+    assert ROTATED in rep["registered"]
+    assert (bird_cli_out / "images" / ROTATED).read_bytes() == (bird_small / ROTATED).read_bytes()
+    assert scene.load(scene.frames.index(next(f for f in scene.frames if f.name == ROTATED))).shape == (960, 544, 3)
     # the three writers agree with each other
     from sparself.io import read_llff, read_nerfstudio
     for other in (read_llff(bird_cli_out), read_nerfstudio(bird_cli_out)):

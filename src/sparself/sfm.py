@@ -124,9 +124,38 @@ def validate_images(image_folder: Path, names: Sequence[str] | None = None) -> l
         main = max(sizes, key=lambda k: len(sizes[k]))
         odd = [f"{n} ({w}x{h})" for (w, h), ns in sizes.items() if (w, h) != main for n in ns]
         raise InputError(f"{folder}: images have different sizes: most are {main[0]}x{main[1]}, but "
-                         f"{', '.join(odd)}; resize them to one size (or use a per-image camera is not enough: "
-                         "one capture, one size)")
+                         f"{', '.join(odd)}; use photos of one capture at one size (or resize them)")
     return paths
+
+
+def _exif_orientation(path: Path) -> int:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return int(im.getexif().get(0x0112, 1))
+
+
+def _upright_inputs(paths: Sequence[Path], work: Path) -> Path:
+    """The folder COLMAP should read. COLMAP ignores EXIF orientation while sparself's image loading
+    applies it; so when any photo is EXIF-rotated, COLMAP gets upright copies (same names) in ``work``,
+    and the recovered cameras match the images as every other stage sees them."""
+    from PIL import Image, ImageOps
+
+    rotated = [p for p in paths if _exif_orientation(p) not in (0, 1)]
+    if not rotated:
+        return paths[0].parent
+    log.info("sfm: %d photo(s) are EXIF-rotated (%s); COLMAP reads upright copies", len(rotated),
+             ", ".join(p.name for p in rotated[:5]))
+    d = work / "upright"
+    d.mkdir()
+    for p in paths:
+        if p in rotated:
+            with Image.open(p) as im:
+                fmt = im.format
+                ImageOps.exif_transpose(im).save(d / p.name, format=fmt, quality=100)
+        else:
+            (d / p.name).symlink_to(p.resolve())
+    return d
 
 
 # ---- pycolmap --------------------------------------------------------------------------------------
@@ -204,6 +233,7 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
     work = Path(tempfile.mkdtemp(prefix="sparself-sfm-"))
     try:
         db = work / "database.db"
+        colmap_images = _upright_inputs(paths, work)
         with _quiet_colmap(cfg.debug):
             t0 = time.perf_counter()
             log.info("sfm: extracting SIFT features from %d images%s", len(names),
@@ -211,7 +241,7 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
             reader = pycolmap.ImageReaderOptions()
             reader.camera_model = cfg.camera_model
             pycolmap.extract_features(
-                db, folder, image_names=names,
+                db, colmap_images, image_names=names,
                 camera_mode=pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE,
                 reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
             timings["features"] = time.perf_counter() - t0
@@ -231,7 +261,7 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
             t0 = time.perf_counter()
             log.info("sfm: incremental mapping")
             (work / "sparse").mkdir()
-            recs = pycolmap.incremental_mapping(db, folder, work / "sparse", mapper)
+            recs = pycolmap.incremental_mapping(db, colmap_images, work / "sparse", mapper)
             timings["mapping"] = time.perf_counter() - t0
     finally:
         shutil.rmtree(work, ignore_errors=True)
