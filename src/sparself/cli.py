@@ -172,8 +172,9 @@ def _add_poses(sub) -> None:
     p.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive",
                    help="exhaustive: all pairs (default; best for ~25 views); sequential: neighbours by file "
                         "name (long video-like captures)")
-    p.add_argument("--max-image-size", type=int, default=0,
-                   help="downscale the longest side to N px for feature extraction (faster); 0 = full size")
+    p.add_argument("--max-image-size", type=int, default=1600,
+                   help="downscale the longest side to N px for feature extraction (faster; default 1600); "
+                        "0 = full size")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--single-camera", dest="single_camera", action="store_true", default=True,
                      help="one shared camera for all photos (default)")
