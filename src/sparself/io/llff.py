@@ -123,11 +123,12 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     order = frame_name_order(scene)
     known = scene.meta.get("frame_bounds") or {}
     global_bounds = None
-    rows = []
+    rows, warned = [], set()
     for i in order:
         f, cam = scene.frames[i], scene.camera(i)
-        if abs(cam.fx - cam.fy) > 1e-6 * cam.fx or abs(cam.cx - cam.width / 2) > 0.5 or \
-                abs(cam.cy - cam.height / 2) > 0.5:
+        if (abs(cam.fx - cam.fy) > 1e-6 * cam.fx or abs(cam.cx - cam.width / 2) > 0.5 or
+                abs(cam.cy - cam.height / 2) > 0.5) and f.camera_id not in warned:
+            warned.add(f.camera_id)
             log.warning("LLFF stores one focal and a centred principal point; camera of %s "
                         "(fx=%.2f fy=%.2f cx=%.2f cy=%.2f) is approximated", f.name, cam.fx, cam.fy, cam.cx, cam.cy)
         b = known.get(f.name) or _frame_bounds(scene, i)
