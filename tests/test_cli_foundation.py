@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
 from pathlib import Path
@@ -18,7 +19,14 @@ SHARED_BIRD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "
 
 
 def run(capsys, *argv):
-    code = main([str(a) for a in argv])
+    try:
+        code = main([str(a) for a in argv])
+    finally:
+        # main() points the root logger at this test's captured stderr; detach it so later tests do
+        # not log into a closed stream
+        root = logging.getLogger()
+        for h in [h for h in root.handlers if type(h) is logging.StreamHandler]:
+            root.removeHandler(h)
     out, err = capsys.readouterr()
     return code, out, err
 
