@@ -53,6 +53,8 @@ class SfmConfig:
     # --- feature extraction -----------------------------------------------------------------------
     max_num_features: int = 16384       # default 8192: more features -> more matches between far views
     peak_threshold: float = 0.004       # default 0.0067: lower -> features on weakly textured objects
+    domain_size_pooling: bool = False   # DSP-SIFT descriptors (default off)
+    estimate_affine_shape: bool = False # affine-covariant SIFT (default off)
     # --- matching ---------------------------------------------------------------------------------
     guided_matching: bool = True        # default False: re-matches with the epipolar geometry
     min_num_inliers: int = 15           # two-view verification (default 15)
@@ -180,6 +182,8 @@ def _options(cfg: SfmConfig):
     ext.num_threads = cfg.num_threads
     ext.sift.max_num_features = cfg.max_num_features
     ext.sift.peak_threshold = cfg.peak_threshold
+    ext.sift.domain_size_pooling = cfg.domain_size_pooling
+    ext.sift.estimate_affine_shape = cfg.estimate_affine_shape
 
     match = pycolmap.FeatureMatchingOptions()
     match.num_threads = cfg.num_threads
