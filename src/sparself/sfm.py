@@ -229,6 +229,9 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
     folder = Path(image_folder)
     paths = validate_images(folder, names)
     names = [p.name for p in paths]
+    if cfg.matcher == "exhaustive" and len(names) > 150:
+        log.warning("sfm: %d images with exhaustive matching compares %d pairs; --matcher sequential is "
+                    "much faster for long ordered captures", len(names), len(names) * (len(names) - 1) // 2)
     if cfg.deterministic:
         cfg = replace(cfg, num_threads=1)
     ext, match, verify, mapper = _options(cfg)
