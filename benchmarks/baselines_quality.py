@@ -24,11 +24,15 @@ from sparself.recon.mpi import MpiConfig, fit
 from sparself.scene import Frame
 
 
-def read(path: Path):
-    try:
-        from sparself.io import read_scene
-    except ImportError:  # io's autodetecting entry point not there yet: LLFF reader directly
-        from sparself.io.llff import read_llff as read_scene
+def read(path: Path, loader: str):
+    """auto: sparself.io.read_scene (a COLMAP model wins; depth bounds from its points, 1st/99th
+    percentile); llff: poses_bounds.npy, whose bounds are the min near / max far over all views."""
+    if loader == "llff":
+        from sparself.io.llff import read_llff
+
+        return read_llff(path)
+    from sparself.io import read_scene
+
     return read_scene(path)
 
 
@@ -41,10 +45,12 @@ def main(argv=None) -> None:
     ap.add_argument("--planes", type=int, default=32)
     ap.add_argument("--methods", default="nearest,blend,flow,planesweep,mpi")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--loader", choices=("auto", "llff"), default="auto",
+                    help="auto: read_scene (COLMAP points give tight depth bounds); llff: poses_bounds.npy bounds")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
 
-    full = read(args.scene).resized(args.max_side)
+    full = read(args.scene, args.loader).resized(args.max_side)
     n = len(full)
     inp = [int(i) for i in np.round(np.linspace(0, n - 1, args.inputs))]
     tgt = sorted({int(round((a + b) / 2)) for a, b in zip(inp[:-1], inp[1:])} - set(inp))
@@ -54,7 +60,7 @@ def main(argv=None) -> None:
     targets = [Frame(full.frames[i].name, full.frames[i].pose, full.frames[i].camera_id,
                      full.frames[i].index, None) for i in tgt]
     cam = full.cameras[targets[0].camera_id]
-    print(f"scene {args.scene.name}: {n} frames, {args.inputs} inputs {inp}")
+    print(f"scene {args.scene.name} (loader {args.loader}): {n} frames, {args.inputs} inputs {inp}")
     print(f"targets ({len(tgt)}): {tgt}; images {cam.width}x{cam.height}; depth bounds {src.depth_bounds()}")
     print(f"LPIPS: {lpips_status()}")
 

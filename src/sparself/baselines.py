@@ -192,12 +192,14 @@ def _sources_for(scene: Scene, tg: Frame, k: int, rot_weight: float) -> tuple[li
 def planesweep(scene: Scene, targets: list[Frame], **cfg) -> np.ndarray:
     """Plane-sweep depth warping of the k nearest sources into each target. -> (T, H, W, 3).
 
-    cfg: fields of :class:`PlaneSweepConfig`.
+    cfg: fields of :class:`PlaneSweepConfig`. Pixels where no plane is seen by two sources take the
+    weighted colour of whatever source sees them (else black).
     """
     import torch
+    import torch.nn.functional as F
 
     from .geometry import inverse_depth_planes
-    from .warp import plane_sweep
+    from .recon.mpi import sweep32
 
     c = PlaneSweepConfig(**{k: v for k, v in cfg.items() if k in PlaneSweepConfig.__dataclass_fields__})
     near, far = scene.depth_bounds()
@@ -208,30 +210,33 @@ def planesweep(scene: Scene, targets: list[Frame], **cfg) -> np.ndarray:
         hw = (cam.height, cam.width)
         idx, w = _sources_for(scene, tg, max(1, c.k), c.rot_weight)
         src = torch.from_numpy(np.stack([scene.load(i).transpose(2, 0, 1) for i in idx])).float()
-        Ks = torch.from_numpy(np.stack([scene.camera(i).K for i in idx]))
-        w2cs = torch.from_numpy(np.stack([scene.frames[i].pose.w2c() for i in idx]))
-        Kt, w2ct = torch.from_numpy(cam.K), torch.from_numpy(tg.pose.w2c())
-        wts = torch.tensor(w, dtype=torch.float32).view(-1, 1, 1, 1)
+        Ks = np.stack([scene.camera(i).K for i in idx])
+        w2cs = np.stack([scene.frames[i].pose.w2c() for i in idx])
+        wts = torch.tensor(w, dtype=torch.float32).view(-1, 1, 1, 1, 1)
         best_cost = torch.full((1, 1) + hw, float("inf"))
         best_col = torch.zeros((3,) + hw)
-        any_col = torch.zeros((3,) + hw)  # fallback where no plane has two valid sources
+        any_col = torch.zeros((3,) + hw)
         any_set = torch.zeros((1,) + hw, dtype=torch.bool)
-        for d in depths:  # one plane at a time keeps memory at O(S H W)
-            vol, valid = plane_sweep(src, Ks, w2cs, Kt, w2ct, torch.tensor([d]), hw)
-            vol, valid = vol[:, 0], valid[:, 0]  # (S, 3, H, W), (S, 1, H, W)
-            wv = wts * valid
+        chunk = max(1, int(4e6 // (len(idx) * 3 * hw[0] * hw[1])))  # planes per sweep: bounded memory
+        for d0 in range(0, len(depths), chunk):
+            vol, valid = sweep32(src, Ks, w2cs, cam.K, tg.pose.w2c(), depths[d0 : d0 + chunk], hw)
+            wv = wts * valid  # (S, D, 1, H, W)
             wsum = wv.sum(0)
-            col = (wv * vol).sum(0) / wsum.clamp_min(1e-8)
+            col = (wv * vol).sum(0) / wsum.clamp_min(1e-8)  # (D, 3, H, W)
             cnt = valid.sum(0)
             mean = (valid * vol).sum(0) / cnt.clamp_min(1)
-            var = ((valid * (vol - mean) ** 2).sum(0) / cnt.clamp_min(1)).mean(0, keepdim=True)
-            cost = torch.nn.functional.avg_pool2d(var[None], c.box, 1, c.box // 2, count_include_pad=False)
-            cost = torch.where(cnt[None] >= min(2, len(idx)), cost, torch.full_like(cost, float("inf")))
-            better = cost < best_cost
-            best_cost = torch.where(better, cost, best_cost)
-            best_col = torch.where(better[0], col, best_col)
-            fill = (wsum > 0) & ~any_set
-            any_col = torch.where(fill, col, any_col)
+            var = ((valid * (vol - mean) ** 2).sum(0) / cnt.clamp_min(1)).mean(1, keepdim=True)
+            cost = F.avg_pool2d(var, c.box, 1, c.box // 2, count_include_pad=False)
+            cost = torch.where(cnt >= min(2, len(idx)), cost, torch.full_like(cost, float("inf")))
+            cmin, arg = cost.min(0)  # (1, H, W): first (nearest) plane on ties
+            ccol = torch.gather(col, 0, arg[None].expand(1, 3, *hw))[0]
+            better = cmin < best_cost[0]
+            best_cost[0] = torch.where(better, cmin, best_cost[0])
+            best_col = torch.where(better, ccol, best_col)
+            seen = wsum > 0  # (D, 1, H, W)
+            first = torch.gather(col, 0, seen.to(torch.uint8).argmax(0, keepdim=True).expand(1, 3, *hw))[0]
+            fill = seen.any(0) & ~any_set
+            any_col = torch.where(fill, first, any_col)
             any_set |= fill
         res = torch.where(torch.isfinite(best_cost[0]), best_col, any_col)
         out.append(res.permute(1, 2, 0).numpy())
