@@ -202,5 +202,122 @@ def _run_poses(args) -> int:
 _COMMANDS.append(_add_poses)
 
 
+# ---- train / synthesize / densify (the CNN–LSTM synthesizer) ----------------------------------------
+
+def _train_options(p: argparse.ArgumentParser) -> None:
+    from .train import TrainConfig as T
+
+    p.add_argument("--epochs", type=int, default=T.epochs, help=f"training epochs (default {T.epochs})")
+    p.add_argument("--size", type=int, default=T.size,
+                   help=f"long side in px of the training images (default {T.size}, CPU-sane)")
+    p.add_argument("--crop", type=int, default=T.crop, help=f"training crop side in px (default {T.crop})")
+    p.add_argument("--decoder", choices=["sweep", "fc"], default=T.decoder,
+                   help="sweep: plane-sweep 3D CNN that generalises to new poses (default); "
+                        "fc: the paper's single linear layer (memorises its inputs)")
+    p.add_argument("--backbone-size", type=int, default=T.backbone_size,
+                   help="ResNet-18 input side; 0 = auto: 224 (the paper's) on CUDA, 64 on CPU")
+    p.add_argument("--holdout", default="",
+                   help="comma-separated frame positions (0-based) never used for training, e.g. 3,10")
+    p.add_argument("--seed", type=int, default=T.seed, help="random seed (same seed, same result on CPU)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default=T.device, help="where to train")
+    p.add_argument("--batch-size", type=int, default=T.batch_size,
+                   help=f"leave-one-out targets per step (default {T.batch_size})")
+    p.add_argument("--weights", default=None,
+                   help="ResNet-18 ImageNet weights (torchvision's resnet18-f37072fd.pth); default: the "
+                        "torch hub cache copy if present, else random initialisation")
+    p.add_argument("--no-context", action="store_true", help="ablation: zero the LSTM output")
+
+
+def _train_config(args):
+    from .errors import ConfigError
+    from .train import TrainConfig
+
+    try:
+        hold = tuple(int(x) for x in args.holdout.split(",") if x.strip()) if args.holdout else ()
+    except ValueError:
+        raise ConfigError(f"--holdout must be comma-separated integers, got {args.holdout!r}") from None
+    return TrainConfig(decoder=args.decoder, epochs=args.epochs, size=args.size, crop=args.crop,
+                       backbone_size=args.backbone_size, batch_size=args.batch_size, seed=args.seed,
+                       device=args.device, holdout=hold, weights=args.weights, context=not args.no_context)
+
+
+def _add_train(sub) -> None:
+    p = sub.add_parser(
+        "train", help="train the CNN–LSTM view synthesizer on a posed scene",
+        description="Per-scene training without leakage: each training frame is predicted from the others, "
+                    "its own step in the sequence being a query (pose + index, no image). Writes RUN/"
+                    "checkpoint.pt (every few epochs), RUN/config.json and RUN/train_log.csv.")
+    p.add_argument("scene", type=Path, help="scene folder or pose file (COLMAP, LLFF, transforms.json, Middlebury)")
+    p.add_argument("--out", type=Path, required=True, help="run folder to write")
+    _train_options(p)
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    _common(p)
+    p.set_defaults(func=_run_train)
+
+
+def _run_train(args) -> int:
+    from .train import train_scene
+
+    train_scene(args.scene, args.out, _train_config(args), resume=args.resume, overwrite=args.overwrite)
+    return 0
+
+
+_COMMANDS.append(_add_train)
+
+
+def _add_synthesize(sub) -> None:
+    p = sub.add_parser(
+        "synthesize", help="synthesize the views of a plan with a trained run and write the dense scene",
+        description="Synthesizes the planned poses from the run's scene (minus its holdout frames) and writes "
+                    "originals + new views as images/ + sparse/0/ (COLMAP) + poses_bounds.npy (LLFF) + "
+                    "transforms.json (nerfstudio).")
+    p.add_argument("run", type=Path, help="run folder written by `sparself train`")
+    p.add_argument("--plan", type=Path, required=True, help="plan JSON written by `sparself plan`")
+    p.add_argument("--out", type=Path, required=True, help="folder for the densified scene")
+    p.add_argument("--scene", type=Path, default=None, help="source scene (default: the one the run used)")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    _common(p)
+    p.set_defaults(func=_run_synthesize)
+
+
+def _run_synthesize(args) -> int:
+    from .synthesize import synthesize_plan
+
+    synthesize_plan(args.run, args.plan, args.out, scene_path=args.scene, overwrite=args.overwrite)
+    return 0
+
+
+_COMMANDS.append(_add_synthesize)
+
+
+def _add_densify(sub) -> None:
+    p = sub.add_parser(
+        "densify", help="photos -> poses -> plan -> train -> synthesize -> dense scene, in one command",
+        description="PHOTOS is a folder of photos (posed with COLMAP) or anything `sparself info` reads. "
+                    "Writes OUT/scene (images/, sparse/0/, poses_bounds.npy, transforms.json) and OUT/run.")
+    p.add_argument("photos", type=Path, help="folder of photos, or a posed scene")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--n-mid", type=int, default=8, help="midpoints between consecutive views (default 8)")
+    p.add_argument("--n-extra", type=int, default=2, help="extrapolated poses past the ends (default 2)")
+    p.add_argument("--out-size", type=int, default=None, help="long side in px of the written scene (default: as read)")
+    _train_options(p)
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    _common(p)
+    p.set_defaults(func=_run_densify)
+
+
+def _run_densify(args) -> int:
+    from .plan import PlanConfig
+    from .synthesize import DensifyConfig, densify
+
+    densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=PlanConfig(n_mid=args.n_mid,
+            n_extra=args.n_extra), out_size=args.out_size, overwrite=args.overwrite))
+    return 0
+
+
+_COMMANDS.append(_add_densify)
+
+
 if __name__ == "__main__":
     sys.exit(main())

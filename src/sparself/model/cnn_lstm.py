@@ -1,0 +1,167 @@
+"""The paper's CNN–LSTM (section 3.3): ResNet-18 features -> FC 512, pose embedding Linear(7 -> 128),
+fixed sinusoidal encoding (512) of the frame index, concatenated (1152) into a 2-layer LSTM (hidden 512),
+whose output at a *query step* conditions an image decoder.
+
+Leakage-free sequences: the frame to predict never contributes an image. Its step in the sequence is a
+query step: its pose, its (possibly fractional) index, and a learned "no image" feature vector in place of
+the CNN feature. Training predicts each training frame from the others this way (leave-one-out); novel
+poses at inference are query steps inserted among all source frames at fractional indices.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from ..geometry import Pose
+from .backbone import IMAGENET_MEAN, IMAGENET_STD, ResNet18
+
+FEAT_DIM, POSE_DIM, PE_DIM, HIDDEN = 512, 128, 512, 512
+
+
+def positional_encoding(pos: torch.Tensor, dim: int = PE_DIM) -> torch.Tensor:
+    """Transformer sinusoids of (fractional) positions: PE(p, 2i) = sin(p / 10000^(2i/d)),
+    PE(p, 2i+1) = cos(p / 10000^(2i/d)). pos: (...) float -> (..., dim)."""
+    i = torch.arange(0, dim, 2, dtype=torch.float32, device=pos.device)
+    freq = torch.exp(-math.log(10000.0) * i / dim)  # (dim/2,)
+    ang = pos.float()[..., None] * freq
+    out = torch.stack([torch.sin(ang), torch.cos(ang)], dim=-1)  # interleave sin, cos
+    return out.reshape(*pos.shape, dim)
+
+
+@dataclass(frozen=True)
+class PoseNorm:
+    """How poses become the network's 7-vectors, fixed at training time and stored with the run.
+
+    The world is translated so that ``center`` (the mean training camera centre) is the origin and scaled
+    by ``1 / scale`` (``Scene.scale()``: the median distance of the training camera centres to their mean),
+    then each COLMAP world-to-camera pose gives ``[tx, ty, tz, qw, qx, qy, qz]`` with
+    ``t = -R (C - center) / scale`` and the quaternion's sign chosen so that ``qw >= 0``.
+    """
+
+    center: tuple[float, float, float]
+    scale: float
+
+    def vector(self, pose: Pose) -> np.ndarray:
+        """(7,) float32 network input for a pose."""
+        t = -pose.R @ (pose.center - np.asarray(self.center)) / self.scale
+        q = pose.qvec if pose.qvec[0] >= 0 else -pose.qvec
+        return np.concatenate([t, q]).astype(np.float32)
+
+    def vectors(self, poses) -> np.ndarray:
+        """(N, 7) for a list of poses."""
+        return np.stack([self.vector(p) for p in poses]) if len(poses) else np.zeros((0, 7), np.float32)
+
+
+def sequence_layout(n_src: int, src_pos: np.ndarray, q_pos: np.ndarray, exclude: np.ndarray) -> np.ndarray:
+    """Order of the steps of one sequence per query: sources (sorted by position) minus ``exclude[b]``,
+    with the query step (-1) inserted after every source whose position is <= the query's.
+
+    src_pos: (S,) ascending; q_pos: (B,); exclude: (B,) source id to drop (its image is the target), or -1.
+    Returns (B, L) int64 of source ids, -1 at the query step. L = S + 1 - (exclude >= 0); all rows share L.
+    """
+    rows = []
+    for b in range(len(q_pos)):
+        keep = [i for i in range(n_src) if i != exclude[b]]
+        p = int(np.sum(src_pos[keep] <= q_pos[b]))
+        rows.append(keep[:p] + [-1] + keep[p:])
+    lens = {len(r) for r in rows}
+    if len(lens) > 1:
+        raise ValueError("mixing leave-one-out and novel queries in one batch gives ragged sequences")
+    return np.asarray(rows, dtype=np.int64).reshape(len(q_pos), -1)
+
+
+class CNNLSTM(nn.Module):
+    """The CNN–LSTM context network plus a decoder.
+
+    backbone_size: side of the square backbone input (the paper: 224).
+    context: if False the LSTM output given to the decoder is zeroed (ablation: "no LSTM context").
+    """
+
+    def __init__(self, decoder: nn.Module, backbone_size: int = 224, context: bool = True) -> None:
+        super().__init__()
+        self.backbone = ResNet18()
+        self.feat_fc = nn.Linear(512, FEAT_DIM)
+        self.query_feature = nn.Parameter(torch.zeros(FEAT_DIM))  # the "no image" feature of a query step
+        self.pose_embed = nn.Linear(7, POSE_DIM)
+        self.lstm = nn.LSTM(FEAT_DIM + PE_DIM + POSE_DIM, HIDDEN, num_layers=2, batch_first=True)
+        self.decoder = decoder
+        self.backbone_size = int(backbone_size)
+        self.context = bool(context)
+        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+
+    def backbone_input(self, images: torch.Tensor) -> torch.Tensor:
+        """(N, 3, H, W) in [0, 1] -> (N, 3, s, s) resized (area-like) and ImageNet-normalised."""
+        s = self.backbone_size
+        x = F.interpolate(images, size=(s, s), mode="bilinear", align_corners=False, antialias=True)
+        return (x - self.mean) / self.std
+
+    def encode(self, bb_input: torch.Tensor) -> torch.Tensor:
+        """(N, 3, s, s) backbone input -> (N, 512) projected CNN features."""
+        return self.feat_fc(self.backbone(bb_input))
+
+    def _step(self, x: torch.Tensor, state: list[tuple[torch.Tensor, torch.Tensor]]):
+        """One time step of the 2-layer LSTM with nn.LSTM's own weights (gate order i, f, g, o).
+        x: (B, 1152); state: per layer (h, c) each (B, 512). -> (top h (B, 512), new state)."""
+        new = []
+        for layer, (h, c) in enumerate(state):
+            gates = F.linear(x, getattr(self.lstm, f"weight_ih_l{layer}"), getattr(self.lstm, f"bias_ih_l{layer}")) \
+                + F.linear(h, getattr(self.lstm, f"weight_hh_l{layer}"), getattr(self.lstm, f"bias_hh_l{layer}"))
+            i, f, g, o = gates.chunk(4, dim=1)
+            c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+            h = torch.sigmoid(o) * torch.tanh(c)
+            new.append((h, c))
+            x = h
+        return x, new
+
+    def step_input(self, feat: torch.Tensor, vec: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+        """The 1152-d LSTM input: [CNN feature 512 | positional encoding 512 | pose embedding 128]."""
+        return torch.cat([feat, positional_encoding(pos).to(feat.dtype), self.pose_embed(vec)], dim=-1)
+
+    def contexts(self, feats: torch.Tensor, src_vec: torch.Tensor, src_pos: torch.Tensor,
+                 q_vec: torch.Tensor, q_pos: torch.Tensor, n_before: torch.Tensor) -> torch.Tensor:
+        """LSTM outputs at the query steps.
+
+        The LSTM is causal, so a query step's output depends only on the steps before it: the first
+        ``n_before[b]`` sources (those at positions <= the query's; for a leave-one-out target t, the
+        sources before t). Their states are computed once and shared by all queries, which equals running
+        the LSTM over each query's full sequence (:func:`sequence_layout`; tested).
+
+        feats: (S, 512) source features; src_vec: (S, 7); src_pos: (S,) ascending positions;
+        q_vec: (B, 7); q_pos: (B,); n_before: (B,) int64 in [0, S]. -> (B, 512).
+        """
+        s = feats.shape[0]
+        zeros = feats.new_zeros(1, HIDDEN)
+        state = [(zeros, zeros), (zeros, zeros)]
+        hs, cs = [torch.cat([zeros, zeros])], [torch.cat([zeros, zeros])]  # per prefix length: (2 layers, 512)
+        x_src = self.step_input(feats, src_vec, src_pos)
+        upto = int(n_before.max()) if len(n_before) else 0
+        for k in range(min(upto, s)):
+            _, state = self._step(x_src[k:k + 1], state)
+            hs.append(torch.cat([state[0][0], state[1][0]]))
+            cs.append(torch.cat([state[0][1], state[1][1]]))
+        H, C = torch.stack(hs)[n_before], torch.stack(cs)[n_before]  # (B, 2, 512)
+        b = q_vec.shape[0]
+        x_q = self.step_input(self.query_feature.expand(b, -1), q_vec, q_pos)
+        h, _ = self._step(x_q, [(H[:, 0], C[:, 0]), (H[:, 1], C[:, 1])])
+        return h if self.context else torch.zeros_like(h)
+
+    def contexts_reference(self, feats: torch.Tensor, src_vec: torch.Tensor, src_pos: torch.Tensor,
+                           q_vec: torch.Tensor, q_pos: torch.Tensor, layout: torch.Tensor) -> torch.Tensor:
+        """:meth:`contexts` computed the slow, literal way: nn.LSTM over each query's whole sequence
+        (layout (B, L) from :func:`sequence_layout`). For tests."""
+        b, L = layout.shape
+        is_q = layout < 0
+        ids = layout.clamp(min=0)
+        f = torch.where(is_q[..., None], self.query_feature.expand(b, L, -1), feats[ids])
+        vec = torch.where(is_q[..., None], q_vec[:, None, :].expand(b, L, 7), src_vec[ids])
+        pos = torch.where(is_q, q_pos[:, None].expand(b, L), src_pos[ids])
+        out, _ = self.lstm(self.step_input(f, vec, pos))
+        h = out[is_q]
+        return h if self.context else torch.zeros_like(h)

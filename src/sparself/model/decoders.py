@@ -1,0 +1,107 @@
+"""Decoders: from the LSTM output at a query step to an image.
+
+- ``fc`` (the paper's): one linear layer 512 -> h*w*3 at a low resolution, upsampled to the target size.
+  It can only reproduce what it memorised; kept as the faithful reproduction.
+- ``sweep`` (default): a small 3D CNN over a plane-sweep volume of the two bracketing source views
+  warped into the target camera. It predicts a softmax over depth planes and a per-plane blend weight
+  between the two sources, plus a small residual; the LSTM output modulates its features (FiLM).
+  It is fully convolutional, so it trains on crops and runs at any resolution.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from ..warp import plane_sweep
+
+DECODERS = ("sweep", "fc")
+
+
+class FCDecoder(nn.Module):
+    """The paper's output layer: Output = W_out h + b_out reshaped to (3, h, w). ctx: (B, 512)."""
+
+    def __init__(self, out_hw: tuple[int, int], hidden: int = 512) -> None:
+        super().__init__()
+        self.out_hw = (int(out_hw[0]), int(out_hw[1]))
+        self.fc = nn.Linear(hidden, 3 * self.out_hw[0] * self.out_hw[1])
+        nn.init.zeros_(self.fc.weight)
+        nn.init.constant_(self.fc.bias, 0.5)  # start from mid-grey, not noise
+
+    def forward(self, ctx: torch.Tensor) -> torch.Tensor:
+        """ctx (B, 512) -> (B, 3, h, w)."""
+        return self.fc(ctx).view(-1, 3, *self.out_hw)
+
+
+def sweep_volume(src: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
+                 K_dst: torch.Tensor, w2c_dst: torch.Tensor, depths: torch.Tensor,
+                 out_hw: tuple[int, int]) -> torch.Tensor:
+    """Decoder input for one target: its two sources warped onto every depth plane.
+
+    src: (2, 3, H, W); K_src (2, 3, 3); w2c_src (2, 4, 4); K_dst (3, 3) (shifted for a crop);
+    w2c_dst (4, 4); depths (D,). -> (8, D, h, w): colours of both sources (6) and their validity (2).
+    """
+    vol, valid = plane_sweep(src, K_src, w2c_src, K_dst, w2c_dst, depths, out_hw)  # (2,D,3,h,w), (2,D,1,h,w)
+    vol = vol * valid
+    x = torch.cat([vol[0], vol[1], valid[0], valid[1]], dim=1)  # (D, 8, h, w)
+    return x.permute(1, 0, 2, 3).contiguous()
+
+
+class SweepDecoder(nn.Module):
+    """Small 3D CNN over a plane-sweep volume, FiLM-conditioned on the LSTM output.
+
+    Input x: (B, 8, D, h, w) from :func:`sweep_volume`; ctx: (B, 512). Output (B, 3, h, w):
+    sum_d p_d (a_d c1_d + (1 - a_d) c2_d) over valid samples (p = softmax over the D planes, a = blend
+    weight per plane), plus a small 2D residual. Per voxel the CNN sees the photo-consistency of the two
+    sources (their colour difference, raw and box-filtered over ``window`` px, as in plane-sweep stereo) and
+    their validity; the box filter gives a wide matching window for little compute (2 CPU cores).
+    """
+
+    def __init__(self, channels: int = 8, hidden: int = 512, residual: bool = True, window: int = 5) -> None:
+        super().__init__()
+        c = channels
+        self.window = int(window)
+        self.conv_in = nn.Conv3d(4, c, 3, padding=1)
+        self.conv_out = nn.Conv3d(c, 2, 3, padding=1)
+        self.film = nn.Linear(hidden, 2 * c)
+        nn.init.zeros_(self.film.weight)  # FiLM starts as the identity
+        nn.init.zeros_(self.film.bias)
+        self.residual = nn.Sequential(nn.Conv2d(3 + 3 + 1, 16, 3, padding=1), nn.ReLU(inplace=True),
+                                      nn.Conv2d(16, 3, 3, padding=1)) if residual else None
+        if self.residual is not None:
+            nn.init.zeros_(self.residual[-1].weight)
+            nn.init.zeros_(self.residual[-1].bias)
+
+    def forward(self, x: torch.Tensor, ctx: torch.Tensor) -> torch.Tensor:
+        """x: (B, 8, D, h, w); ctx: (B, 512) -> (B, 3, h, w)."""
+        c1, c2, v1, v2 = x[:, 0:3], x[:, 3:6], x[:, 6:7], x[:, 7:8]
+        b, _, d, h, w = x.shape
+        both = v1 * v2
+        diff = (c1 - c2).abs().mean(1, keepdim=True) * both + (1 - both)  # unseen counts as mismatch
+        k = self.window
+        box = F.avg_pool2d(diff.permute(0, 2, 1, 3, 4).reshape(b * d, 1, h, w), k, 1, k // 2,
+                           count_include_pad=False).reshape(b, d, 1, h, w).permute(0, 2, 1, 3, 4)
+        feat = torch.cat([diff, box, v1, v2], 1).contiguous(memory_format=torch.channels_last_3d)
+        hid = self.conv_in(feat)
+        g, beta = self.film(ctx).chunk(2, dim=1)
+        hid = F.relu(hid * (1 + g[:, :, None, None, None]) + beta[:, :, None, None, None])
+        logits = self.conv_out(hid)  # (B, 2, D, h, w)
+        p = torch.softmax(logits[:, 0], dim=1)[:, None]  # over depth
+        a = torch.sigmoid(logits[:, 1])[:, None]
+        w1, w2 = a * v1, (1 - a) * v2
+        colour = (w1 * c1 + w2 * c2) / (w1 + w2).clamp(min=1e-6)
+        out = (p * colour).sum(2)  # (B, 3, h, w)
+        if self.residual is not None:
+            cover = (p * ((v1 + v2) > 0).to(x.dtype)).sum(2)  # how much of p saw a source
+            spread = (p * (colour - out[:, :, None]).abs()).sum(2)  # disagreement along depth
+            out = out + self.residual(torch.cat([out, spread, cover], 1))
+        return out
+
+
+def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32)) -> nn.Module:
+    if name == "sweep":
+        return SweepDecoder(channels)
+    if name == "fc":
+        return FCDecoder(fc_hw)
+    raise ValueError(f"unknown decoder {name!r}; choose one of {', '.join(DECODERS)}")

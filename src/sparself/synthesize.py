@@ -1,0 +1,202 @@
+"""Synthesis with a trained CNN–LSTM run, scene densification, and the whole photos -> dense scene pipeline.
+
+Novel poses are query steps (pose + fractional index, no image) inserted among all source frames; each
+target gets its own sequence (the sources plus its query step), and all targets run as one batch.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .errors import InputError
+from .model import sweep_volume
+from .outputs import atomic_dir
+from .scene import Frame, Scene
+from .train import Run, TrainConfig, bracket, index_positions, load_run, scene_tensors, train
+
+log = logging.getLogger(__name__)
+
+
+def _as_run(run_or_model) -> Run:
+    return run_or_model if isinstance(run_or_model, Run) else load_run(run_or_model)
+
+
+def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_dst: torch.Tensor,
+                  hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor, tile: int = 256,
+                  margin: int = 8) -> torch.Tensor:
+    """Sweep-decode one full target image in overlapping tiles (bounded memory). -> (3, H, W)."""
+    h, w = hw
+    out = torch.zeros(3, h, w, device=ctx.device)
+    src, K, w2c = st["images"][[i, j]], st["K"][[i, j]], st["w2c"][[i, j]]
+    for y0 in range(0, h, tile):
+        for x0 in range(0, w, tile):
+            ya, xa = max(0, y0 - margin), max(0, x0 - margin)
+            yb, xb = min(h, y0 + tile + margin), min(w, x0 + tile + margin)
+            Kc = K_dst.clone()
+            Kc[0, 2] -= xa
+            Kc[1, 2] -= ya
+            x = sweep_volume(src, K, w2c, Kc, w2c_dst, depths, (yb - ya, xb - xa))
+            pred = run.model.decoder(x[None], ctx[None])[0]
+            th, tw = min(tile, h - y0), min(tile, w - x0)
+            out[:, y0:y0 + th, x0:x0 + tw] = pred[:, y0 - ya:y0 - ya + th, x0 - xa:x0 - xa + tw]
+    return out
+
+
+@torch.no_grad()
+def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
+    """Synthesize the views of ``targets`` from the source frames of ``scene``.
+
+    run_or_model: a :class:`sparself.train.Run` or a run folder / checkpoint path.
+    scene: source frames with images (at any resolution: their cameras give the size).
+    targets: Frames with pose, camera_id (a camera of ``scene``), fractional index; their images are
+    never read. Returns (T, H, W, 3) float32 in [0, 1] at the targets' camera size (all equal).
+    """
+    run = _as_run(run_or_model)
+    if not targets:
+        return np.zeros((0, 1, 1, 3), np.float32)
+    sizes = {(scene.cameras[t.camera_id].height, scene.cameras[t.camera_id].width) for t in targets}
+    if len(sizes) > 1:
+        raise InputError(f"targets have different image sizes {sorted(sizes)}; synthesize them separately")
+    hw = sizes.pop()
+    model = run.model.eval()
+    dev = next(model.parameters()).device
+    st = scene_tensors(scene)
+    st = {k: (v.to(dev) if isinstance(v, torch.Tensor) else v) for k, v in st.items()}
+    s = st["images"].shape[0]
+    if s < 2:
+        raise InputError("need at least 2 source frames to synthesize")
+    src_pos = np.arange(s, dtype=np.float64)
+    q_pos = index_positions(st["index"], [t.index for t in targets])
+    norm = run.norm
+    vec = torch.from_numpy(norm.vectors(st["poses"])).to(dev)
+    q_vec = torch.from_numpy(norm.vectors([t.pose for t in targets])).to(dev)
+    feats = model.encode(model.backbone_input(st["images"]))
+    n_before = torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev)
+    ctx = model.contexts(feats, vec, torch.tensor(src_pos, dtype=torch.float32, device=dev), q_vec,
+                         torch.tensor(q_pos, dtype=torch.float32, device=dev), n_before)
+    if run.cfg.decoder == "fc":
+        out = F.interpolate(model.decoder(ctx), size=hw, mode="bilinear", align_corners=False)
+    else:
+        depths = torch.tensor(run.depths, dtype=torch.float32, device=dev)
+        outs = []
+        for b, t in enumerate(targets):
+            i, j = bracket(src_pos, float(q_pos[b]))
+            K_dst = torch.tensor(scene.cameras[t.camera_id].K, dtype=torch.float32, device=dev)
+            w2c_dst = torch.tensor(t.pose.w2c(), dtype=torch.float32, device=dev)
+            outs.append(_decode_tiled(run, st, i, j, K_dst, w2c_dst, hw, ctx[b], depths))
+        out = torch.stack(outs)
+    return out.clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
+
+
+def synthesizer(run_or_model):
+    """The team synthesizer call ``f(scene, targets) -> (T, H, W, 3)`` bound to a trained run."""
+    run = _as_run(run_or_model)
+    return lambda scene, targets, **_: synthesize(run, scene, targets)
+
+
+def densify_scene(scene: Scene, targets: list[Frame], images: np.ndarray) -> Scene:
+    """The scene with the synthesized frames added (``image`` set, ``synthetic=True``), ordered by index."""
+    if len(targets) != len(images):
+        raise ValueError(f"{len(targets)} targets but {len(images)} images")
+    new = [replace(t, image=np.asarray(img, np.float32), path=None, synthetic=True)
+           for t, img in zip(targets, images)]
+    frames = sorted(list(scene.frames) + new, key=lambda f: f.index)
+    return replace(scene, frames=frames, meta=dict(scene.meta, synthesized=len(new)))
+
+
+@dataclass
+class DensifyConfig:
+    """Options of the whole pipeline. out_size: long side in px of the written scene (None = as read)."""
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    plan: object | None = None  # sparself.plan.PlanConfig; None = its defaults
+    sfm: object | None = None  # sparself.sfm.SfmConfig; None = its defaults
+    out_size: int | None = None
+    overwrite: bool = False
+    keep_run: bool = True
+
+
+def _read_input(path: Path, cfg: DensifyConfig) -> Scene:
+    """A scene from anything read_scene accepts, else a folder of photos posed with SfM."""
+    from . import io as sio
+
+    try:
+        return sio.read_scene(path)
+    except InputError as read_err:
+        from .scene import list_images
+
+        try:
+            list_images(path)
+        except InputError:
+            raise read_err from None
+        from .sfm import SfmConfig, recover_poses
+
+        log.info("%s: no poses found; recovering them with structure from motion", path)
+        scene, report = recover_poses(path, cfg.sfm or SfmConfig())
+        log.info("%s", report)
+        return scene
+
+
+def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) -> Scene:
+    """Photos (or a posed scene) -> poses -> plan -> train -> synthesize -> written dense scene.
+
+    photos_or_scene: a Scene, or a path read by ``sparself.io.read_scene`` or a folder of photos (SfM).
+    out: folder written atomically: the dense scene in ``out/scene/`` (``sparself.io.write_scene`` layout:
+    images/, sparse/0/, poses_bounds.npy, transforms.json) and, if ``keep_run``, the trained run in
+    ``out/run/``. Returns the densified scene.
+    """
+    from . import io as sio
+    from .outputs import check_output_dir
+    from .plan import PlanConfig, plan_sequence
+
+    cfg = cfg or DensifyConfig()
+    out = Path(out)
+    check_output_dir(out, cfg.overwrite)
+    scene = photos_or_scene if isinstance(photos_or_scene, Scene) else _read_input(Path(photos_or_scene), cfg)
+    if cfg.out_size:
+        scene = _materialised(scene.resized(cfg.out_size))
+    scene, targets = plan_sequence(scene, cfg.plan or PlanConfig())  # sources on the plan's index scale
+    with atomic_dir(out, cfg.overwrite) as tmp:
+        run = train(scene, tmp / "run", cfg.train)
+        images = synthesize(run, scene, targets)
+        dense = densify_scene(scene, targets, images)
+        sio.write_scene_into(dense, tmp / "scene")
+        if not cfg.keep_run:
+            import shutil
+
+            shutil.rmtree(tmp / "run")
+    return dense
+
+
+def _materialised(scene: Scene) -> Scene:
+    """Frames with their images loaded at the cameras' size (so a resized scene writes resized images)."""
+    frames = [replace(f, image=scene.load(i)) for i, f in enumerate(scene.frames)]
+    return replace(scene, frames=frames)
+
+
+def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, scene_path: Path | str | None = None,
+                    overwrite: bool = False) -> Scene:
+    """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene."""
+    from . import io as sio
+    from .plan import load_plan, order_frames, reindexed
+
+    run = load_run(run_path)
+    src_path = scene_path or run.meta.get("scene")
+    if not src_path:
+        raise InputError(f"{run_path}: the run does not record its scene; pass --scene")
+    scene = sio.read_scene(Path(src_path))
+    hold = set(run.cfg.holdout)
+    scene = scene.subset([i for i in range(len(scene)) if i not in hold])
+    targets = load_plan(Path(plan), scene)  # validates the file
+    order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
+    if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
+        scene = reindexed(scene, order_frames(scene, order))
+    dense = densify_scene(scene, targets, synthesize(run, scene, targets))
+    return sio.write_scene(dense, Path(out), overwrite=overwrite)

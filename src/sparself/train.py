@@ -1,0 +1,476 @@
+"""Per-scene, leakage-free training of the CNN–LSTM view synthesizer.
+
+Every training frame is predicted leave-one-out: from a sequence of the other training frames in which
+its own step is a query step (pose + index, no image), see :mod:`sparself.model.cnn_lstm`. Frames listed
+in ``holdout`` are removed from the scene before anything is loaded, so their images are never opened.
+
+A run folder holds ``checkpoint.pt`` (model, optimizer, grad scaler, RNG states, epoch; written
+atomically every ``checkpoint_every`` epochs and at the end), ``config.json`` (the :class:`TrainConfig`)
+and ``train_log.csv`` (epoch, mean loss, wall seconds, CPU seconds of this process). ``resume=True`` continues from the checkpoint and ends with
+the same weights as an uninterrupted run (same seed, CPU).
+
+CPU defaults (2 cores, 25 images): training images at 128 px on their long side, 32 px crops, backbone
+input 64 px and frozen (features computed once), batch 8 targets, 100 epochs (4 steps each). On CUDA the
+backbone input is 224 px (the paper's) and it is fine-tuned end to end.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import json
+import logging
+import random
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .errors import ConfigError, InputError
+from .geometry import inverse_depth_planes
+from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights, sweep_volume
+from .model.decoders import DECODERS
+from .outputs import atomic_file, check_output_dir
+from .scene import Scene
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT, CONFIG, LOG = "checkpoint.pt", "config.json", "train_log.csv"
+
+
+@dataclass
+class TrainConfig:
+    """Training options. Defaults are CPU-sane: ``sparself densify`` on 25 images takes minutes on 2 cores.
+
+    decoder: "sweep" (default; plane-sweep 3D CNN, generalises to new poses) or "fc" (the paper's).
+    size: long side in px of the training images (the scene is resized to it).
+    crop: side in px of the random training crops (sweep decoder).
+    backbone_size: side of the square ResNet-18 input; 0 = auto: 224 (the paper's) on CUDA, 64 on CPU.
+    batch_size: leave-one-out targets per optimisation step; an epoch visits every training frame once.
+    planes: depth planes of the sweep volume (uniform in disparity over the scene's depth bounds).
+    channels: feature channels of the sweep decoder's 3D CNN.
+    fc_side: long side in px of the fc decoder's output grid (upsampled to the target size).
+    context: False zeroes the LSTM output given to the decoder (ablation).
+    finetune_backbone: train ResNet-18 end to end (the paper); None = auto: yes on CUDA, no on CPU, where
+        the backbone's features are computed once and the rest of the network trains (CPU time budget).
+    holdout: positions (0-based, in the scene's frame order) of frames never used for training.
+    """
+
+    decoder: str = "sweep"
+    epochs: int = 100
+    size: int = 128
+    crop: int = 32
+    backbone_size: int = 0
+    batch_size: int = 8
+    lr: float = 1e-3
+    planes: int = 24
+    channels: int = 8
+    fc_side: int = 48
+    context: bool = True
+    finetune_backbone: bool | None = None
+    seed: int = 0
+    device: str = "auto"
+    holdout: tuple[int, ...] = ()
+    checkpoint_every: int = 5
+    weights: str | None = None
+
+    def __post_init__(self) -> None:
+        self.holdout = tuple(int(i) for i in self.holdout)
+        if self.decoder not in DECODERS:
+            raise ConfigError(f"unknown decoder {self.decoder!r}; choose one of {', '.join(DECODERS)}")
+        for name in ("epochs", "size", "crop", "batch_size", "planes", "channels", "fc_side", "checkpoint_every"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ConfigError(f"device must be auto, cpu or cuda, got {self.device!r}")
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["holdout"] = list(self.holdout)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> "TrainConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+# options that may differ between a run and its resumption
+_RESUME_FREE = ("epochs", "device", "checkpoint_every", "weights")
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
+        if not torch.cuda.is_available():
+            raise ConfigError("--device cuda asked for, but torch sees no CUDA device")
+        return torch.device("cuda")
+    return torch.device("cpu")
+
+
+# ---- scene -> tensors ----------------------------------------------------------------------------
+
+def index_positions(src_index: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Sequence positions (0..S-1 for the sorted sources) of frame indices; fractional in between,
+    extrapolated linearly beyond the ends with the end spacing. src_index: (S,) ascending."""
+    src_index = np.asarray(src_index, np.float64)
+    index = np.atleast_1d(np.asarray(index, np.float64))
+    s = len(src_index)
+    if s == 1:
+        return index - src_index[0]
+    pos = np.interp(index, src_index, np.arange(s, dtype=np.float64))
+    lo, hi = index < src_index[0], index > src_index[-1]
+    pos[lo] = (index[lo] - src_index[0]) / max(src_index[1] - src_index[0], 1e-9)
+    pos[hi] = s - 1 + (index[hi] - src_index[-1]) / max(src_index[-1] - src_index[-2], 1e-9)
+    return pos
+
+
+def bracket(src_pos: np.ndarray, q: float, exclude: int = -1) -> tuple[int, int]:
+    """The two sources around position q (the previous and the next), or the two nearest on one side
+    beyond the ends. src_pos: (S,) ascending; exclude: a source that may not be used (the target)."""
+    ids = [i for i in range(len(src_pos)) if i != exclude]
+    if len(ids) < 2:
+        raise InputError("need at least 2 source frames (besides the target) to synthesize a view")
+    before = [i for i in ids if src_pos[i] <= q]
+    after = [i for i in ids if src_pos[i] > q]
+    if before and after:
+        return before[-1], after[0]
+    return (after[0], after[1]) if not before else (before[-1], before[-2])
+
+
+def scene_tensors(scene: Scene) -> dict:
+    """Sources of a scene (sorted by Frame.index) as tensors at their cameras' size.
+
+    Returns dict: images (S, 3, H, W), K (S, 3, 3), w2c (S, 4, 4) float32, index (S,) np.float64,
+    order (S,) positions in ``scene.frames``.
+    """
+    order = np.argsort([f.index for f in scene.frames], kind="stable")
+    imgs = np.stack([scene.load(int(i)) for i in order])  # raises on mixed sizes via torch stack below
+    return {
+        "images": torch.from_numpy(imgs).permute(0, 3, 1, 2).contiguous(),
+        "K": torch.tensor(np.stack([scene.camera(int(i)).K for i in order]), dtype=torch.float32),
+        "w2c": torch.tensor(np.stack([scene.frames[int(i)].pose.w2c() for i in order]), dtype=torch.float32),
+        "index": np.array([scene.frames[int(i)].index for i in order], dtype=np.float64),
+        "poses": [scene.frames[int(i)].pose for i in order],
+        "order": order,
+    }
+
+
+def fc_grid(width: int, height: int, side: int) -> tuple[int, int]:
+    """(h, w) of the fc decoder's output: long side ``side``, the images' aspect ratio."""
+    s = side / max(width, height)
+    return max(1, round(height * s)), max(1, round(width * s))
+
+
+# ---- model construction and checkpoints ------------------------------------------------------------
+
+def build_model(cfg: TrainConfig, meta: dict) -> CNNLSTM:
+    dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta["fc_hw"]))
+    return CNNLSTM(dec, backbone_size=meta["backbone_size"], context=cfg.context)
+
+
+@dataclass
+class Run:
+    """A trained synthesizer: the model, its config and what it needs to place new poses."""
+
+    model: CNNLSTM
+    cfg: TrainConfig
+    meta: dict
+    path: Path | None = None
+
+    @property
+    def norm(self) -> PoseNorm:
+        return PoseNorm(tuple(self.meta["center"]), float(self.meta["scale"]))
+
+    @property
+    def depths(self) -> np.ndarray:
+        return inverse_depth_planes(self.meta["near"], self.meta["far"], self.cfg.planes)
+
+
+def _config_mismatch(saved: TrainConfig, cfg: TrainConfig) -> list[str]:
+    a, b = saved.to_json(), cfg.to_json()
+    return [f"{k}={a[k]!r} (asked: {b[k]!r})" for k in a if k not in _RESUME_FREE and a[k] != b.get(k)]
+
+
+def _read_checkpoint(path: Path) -> dict:
+    if not path.is_file():
+        raise InputError(f"{path}: no checkpoint (train a run first with `sparself train`)")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:
+        raise InputError(f"{path}: cannot read checkpoint ({type(e).__name__}: {e})") from None
+    if not isinstance(ck, dict) or not {"model", "config", "meta"} <= set(ck):
+        raise InputError(f"{path}: not a sparself checkpoint")
+    return ck
+
+
+def _load_state(model: torch.nn.Module, sd: dict, path: Path) -> None:
+    try:
+        model.load_state_dict(sd, strict=True)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()
+        raise ConfigError(f"{path}: checkpoint does not fit this model ({first[-1].strip() if first else e})") from None
+
+
+def load_run(path: Path | str, device: str = "cpu") -> Run:
+    """Load a trained run folder (or its checkpoint file) for synthesis."""
+    path = Path(path)
+    ck_path = path / CHECKPOINT if path.is_dir() else path
+    ck = _read_checkpoint(ck_path)
+    cfg = TrainConfig.from_json(ck["config"])
+    model = build_model(cfg, ck["meta"])
+    _load_state(model, ck["model"], ck_path)
+    model.to(resolve_device(device)).eval()
+    return Run(model, cfg, ck["meta"], ck_path.parent)
+
+
+def _rng_state(gen: torch.Generator) -> dict:
+    return {"gen": gen.get_state(), "torch": torch.get_rng_state(), "numpy": np.random.get_state(),
+            "python": random.getstate(),
+            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None}
+
+
+def _set_rng_state(st: dict, gen: torch.Generator) -> None:
+    gen.set_state(st["gen"])
+    torch.set_rng_state(st["torch"])
+    np.random.set_state(st["numpy"])
+    random.setstate(st["python"])
+    if st.get("cuda") is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(st["cuda"])
+
+
+@contextlib.contextmanager
+def _deterministic(device: torch.device):
+    """Deterministic kernels on CPU for the duration of training (restored afterwards)."""
+    prev = torch.are_deterministic_algorithms_enabled()
+    if device.type == "cpu":
+        torch.use_deterministic_algorithms(True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(prev)
+
+
+# ---- the training step -----------------------------------------------------------------------------
+
+def _sweep_batch(data: dict, targets: list[int], crops: list[tuple[int, int, int, int]],
+                 depths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sweep volumes (B, 8, D, h, w) of each leave-one-out target's two bracketing sources (never the
+    target itself) and the target's ground truth (B, 3, h, w). crops: (y0, x0, h, w) per target."""
+    xs, gts = [], []
+    imgs, K, w2c, pos = data["images"], data["K"], data["w2c"], data["pos"]
+    for t, (y0, x0, h, w) in zip(targets, crops):
+        i, j = bracket(pos, float(pos[t]), exclude=t)
+        Kc = K[t].clone()
+        Kc[0, 2] -= x0
+        Kc[1, 2] -= y0
+        xs.append(sweep_volume(imgs[[i, j]], K[[i, j]], w2c[[i, j]], Kc, w2c[t], depths, (h, w)))
+        gts.append(imgs[t, :, y0:y0 + h, x0:x0 + w])
+    return torch.stack(xs), torch.stack(gts)
+
+
+def loo_forward(model: CNNLSTM, data: dict, targets: list[int], cfg: TrainConfig, depths: torch.Tensor,
+                crops: list[tuple[int, int, int, int]] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Leave-one-out predictions of training frames ``targets`` and their ground truth, (B, 3, h, w) each.
+
+    Each target's sequence has a query step in its place; the sweep decoder sees only its two bracketing
+    sources. crops: per target (y0, x0, h, w) for the sweep decoder (None: whole images).
+    """
+    # frozen backbone: its pooled features were computed once; else fine-tune it end to end
+    feats = model.feat_fc(data["bb_feats"]) if "bb_feats" in data else model.encode(data["bb"])
+    t_idx = np.asarray(targets)
+    n_before = torch.as_tensor(t_idx, device=feats.device)  # leave-one-out: the sources before t
+    ctx = model.contexts(feats, data["vec"], data["pos_t"], data["vec"][t_idx], data["pos_t"][t_idx], n_before)
+    if cfg.decoder == "fc":
+        return model.decoder(ctx), data["fc_images"][t_idx]
+    if crops is None:
+        _, _, h, w = data["images"].shape
+        crops = [(0, 0, h, w)] * len(targets)
+    x, gt = _sweep_batch(data, targets, crops, depths)
+    return model.decoder(x, ctx), gt
+
+
+def _loo_loss(model: CNNLSTM, data: dict, targets: list[int], gen: torch.Generator, cfg: TrainConfig,
+              depths: torch.Tensor) -> torch.Tensor:
+    crops = None
+    if cfg.decoder == "sweep":
+        _, _, h, w = data["images"].shape
+        c = min(cfg.crop, h, w)
+        ys = torch.randint(0, h - c + 1, (len(targets),), generator=gen).tolist()
+        xs = torch.randint(0, w - c + 1, (len(targets),), generator=gen).tolist()
+        crops = [(y, x, c, c) for y, x in zip(ys, xs)]
+    pred, gt = loo_forward(model, data, targets, cfg, depths, crops)
+    return F.mse_loss(pred.float(), gt.float())
+
+
+def attach_features(model: CNNLSTM, data: dict, finetune: bool) -> None:
+    """Backbone inputs (and, for a frozen backbone, its features, computed once) into ``data``."""
+    data["bb"] = model.backbone_input(data["images"])
+    if not finetune:
+        model.backbone.requires_grad_(False)
+        with torch.no_grad():
+            data["bb_feats"] = model.backbone(data["bb"])
+
+
+@torch.no_grad()
+def predict_leave_one_out(run: Run, scene: Scene, targets: list[int]) -> np.ndarray:
+    """Leave-one-out predictions, exactly as training computes them, of the training frames at positions
+    ``targets`` (in the run's training order: ``scene`` minus holdout, sorted by index), whole images.
+    -> (B, H, W, 3) at the training size."""
+    dev = next(run.model.parameters()).device
+    data, _ = prepare(scene, run.cfg, dev)
+    attach_features(run.model, data, run.meta.get("finetune_backbone", True))
+    depths = torch.tensor(run.depths, dtype=torch.float32, device=dev)
+    pred, _ = loo_forward(run.model.eval(), data, list(targets), run.cfg, depths)
+    return pred.clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy()
+
+
+def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict, dict]:
+    """Training tensors and run metadata from the training frames (holdout removed, never loaded)."""
+    bad = [i for i in cfg.holdout if not 0 <= i < len(scene)]
+    if bad:
+        raise ConfigError(f"holdout positions {bad} are outside the scene's {len(scene)} frames")
+    keep = [i for i in range(len(scene)) if i not in set(cfg.holdout)]
+    if len(keep) < 3:
+        raise InputError(f"need at least 3 training frames, got {len(keep)} (scene {scene.source})")
+    src = scene.subset(keep)
+    small = src.resized(cfg.size)
+    try:
+        st = scene_tensors(small)
+    except ValueError as e:
+        raise InputError(f"training frames of {scene.source} differ in size ({e}); resize them first") from None
+    centers = np.stack([p.center for p in st["poses"]])
+    norm = PoseNorm(tuple(float(v) for v in centers.mean(0)), float(src.scale()))
+    near, far = src.depth_bounds()
+    _, _, h, w = st["images"].shape
+    bb_size = cfg.backbone_size or (224 if device.type == "cuda" else 64)
+    meta = {"center": list(norm.center), "scale": norm.scale, "near": near, "far": far,
+            "fc_hw": list(fc_grid(w, h, cfg.fc_side)), "backbone_size": bb_size, "train_hw": [h, w],
+            "sources": [src.frames[int(i)].name for i in st["order"]],
+            "scene": str(scene.source) if scene.source else None}
+    pos = np.arange(len(keep), dtype=np.float64)
+    data = {
+        "images": st["images"].to(device), "K": st["K"].to(device), "w2c": st["w2c"].to(device),
+        "pos": pos, "pos_t": torch.tensor(pos, dtype=torch.float32, device=device),
+        "vec": torch.from_numpy(norm.vectors(st["poses"])).to(device),
+    }
+    data["fc_images"] = F.interpolate(data["images"], size=tuple(meta["fc_hw"]), mode="bilinear",
+                                      align_corners=False, antialias=True)
+    return data, meta
+
+
+def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resume: bool = False,
+          overwrite: bool = False, progress: bool | None = None) -> Run:
+    """Train a synthesizer on ``scene`` (minus ``cfg.holdout``) into the run folder ``out``.
+
+    resume: continue from ``out/checkpoint.pt`` (its config must match ``cfg`` except epochs/device).
+    Returns the trained :class:`Run` (model in eval mode, on the training device).
+    """
+    from tqdm.auto import tqdm
+
+    cfg = cfg or TrainConfig()
+    out = Path(out)
+    device = resolve_device(cfg.device)
+    ck = None
+    if resume:
+        ck = _read_checkpoint(out / CHECKPOINT)
+        saved = TrainConfig.from_json(ck["config"])
+        diff = _config_mismatch(saved, cfg)
+        if diff:
+            raise ConfigError(f"{out / CHECKPOINT} was trained with a different config: {', '.join(diff)}")
+    else:
+        check_output_dir(out, overwrite)
+    random.seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+
+    data, meta = prepare(scene, cfg, device)
+    model = build_model(cfg, meta)
+    if ck is None:
+        meta["weights"] = load_resnet18_weights(model.backbone, cfg.weights)
+    else:
+        meta["weights"] = ck["meta"].get("weights", "random")
+    model.to(device)
+    finetune = cfg.finetune_backbone if cfg.finetune_backbone is not None else device.type == "cuda"
+    meta["finetune_backbone"] = bool(finetune)
+    attach_features(model, data, finetune)
+    depths = torch.tensor(inverse_depth_planes(meta["near"], meta["far"], cfg.planes), dtype=torch.float32,
+                          device=device)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    use_amp = device.type == "cuda"
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    start = 0
+    if ck is not None:
+        _load_state(model, ck["model"], out / CHECKPOINT)
+        opt.load_state_dict(ck["optimizer"])
+        scaler.load_state_dict(ck["scaler"])
+        _set_rng_state(ck["rng"], gen)
+        start = int(ck["epoch"])
+        log.info("resuming %s at epoch %d of %d", out, start, cfg.epochs)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_file(out / CONFIG) as tmp:
+        tmp.write_text(json.dumps(cfg.to_json(), indent=2))
+    _truncate_log(out / LOG, start)
+
+    n = data["images"].shape[0]
+    bar = tqdm(range(start, cfg.epochs), initial=start, total=cfg.epochs, desc="train", unit="epoch",
+               disable=(not sys.stderr.isatty()) if progress is None else not progress)
+    model.train()
+    with _deterministic(device):
+        for epoch in bar:
+            t0, c0, total = time.perf_counter(), time.process_time(), 0.0
+            perm = torch.randperm(n, generator=gen).tolist()
+            for b in range(0, n, cfg.batch_size):
+                targets = perm[b:b + cfg.batch_size]
+                with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
+                    loss = _loo_loss(model, data, targets, gen, cfg, depths)
+                opt.zero_grad(set_to_none=True)
+                scaler.scale(loss).backward()
+                scaler.step(opt)
+                scaler.update()
+                total += float(loss.detach()) * len(targets)
+            mean = total / n
+            bar.set_postfix(loss=f"{mean:.5f}")
+            _append_log(out / LOG, epoch + 1, mean, time.perf_counter() - t0, time.process_time() - c0)
+            if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
+                _save_checkpoint(out / CHECKPOINT, model, opt, scaler, gen, epoch + 1, cfg, meta)
+    model.eval()
+    return Run(model, cfg, meta, out)
+
+
+def _save_checkpoint(path: Path, model, opt, scaler, gen, epoch: int, cfg: TrainConfig, meta: dict) -> None:
+    state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scaler": scaler.state_dict(),
+             "rng": _rng_state(gen), "epoch": epoch, "config": cfg.to_json(), "meta": meta}
+    with atomic_file(path) as tmp:
+        torch.save(state, tmp)
+
+
+def _truncate_log(path: Path, epochs_done: int) -> None:
+    """Keep the header and the rows of epochs <= epochs_done (a resumed run rewrites the rest)."""
+    rows = []
+    if epochs_done > 0 and path.is_file():
+        with open(path, newline="") as f:
+            rows = [r for r in csv.DictReader(f) if int(r["epoch"]) <= epochs_done]
+    with atomic_file(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["epoch", "loss", "seconds", "cpu_seconds"])
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _append_log(path: Path, epoch: int, loss: float, seconds: float, cpu_seconds: float) -> None:
+    with open(path, "a", newline="") as f:
+        csv.writer(f).writerow([epoch, f"{loss:.6g}", f"{seconds:.3f}", f"{cpu_seconds:.3f}"])
+
+
+def train_scene(scene_path: Path | str, out: Path | str, cfg: TrainConfig | None = None, *,
+                resume: bool = False, overwrite: bool = False) -> Run:
+    """`sparself train`: read a scene (anything ``sparself.io.read_scene`` accepts) and train on it."""
+    from . import io as sio
+
+    scene = sio.read_scene(Path(scene_path))
+    return train(scene, out, cfg, resume=resume, overwrite=overwrite)

@@ -1,0 +1,188 @@
+"""The CNN–LSTM network: backbone layout and weight loading, encodings, causal contexts, decoders."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from sparself.errors import ConfigError, InputError
+from sparself.geometry import Pose, rotmat_to_quat
+from sparself.model import (CNNLSTM, FCDecoder, PoseNorm, ResNet18, SweepDecoder, load_resnet18_weights,
+                            positional_encoding, sequence_layout)
+from sparself.model import backbone as bb_mod
+
+torch.set_num_threads(1)  # shared cores: 1 thread is faster there
+
+
+def test_backbone_keys_follow_torchvision_layout_and_pool_to_512():
+    m = ResNet18()
+    keys = list(m.state_dict())
+    # torchvision's resnet18().state_dict() has 122 entries; without fc.weight / fc.bias: 120
+    assert len(keys) == 120
+    for k in ["conv1.weight", "bn1.running_mean", "bn1.num_batches_tracked", "layer1.0.conv1.weight",
+              "layer1.1.bn2.bias", "layer2.0.downsample.0.weight", "layer2.0.downsample.1.running_var",
+              "layer4.1.conv2.weight", "layer4.1.bn2.weight"]:
+        assert k in keys
+    assert not any(k.startswith("fc.") for k in keys)
+    assert "layer1.0.downsample.0.weight" not in keys  # no projection where shapes already match
+    assert m.layer4[1].conv2.weight.shape == (512, 512, 3, 3)
+    out = m.eval()(torch.rand(2, 3, 64, 64))
+    assert out.shape == (2, 512)
+
+
+def test_backbone_batchnorm_is_frozen_so_frames_do_not_mix():
+    m = ResNet18().train()
+    x = torch.rand(3, 3, 32, 32)
+    a = m(x)
+    b = m(torch.cat([x[:1], torch.rand(2, 3, 32, 32)]))
+    assert torch.allclose(a[0], b[0], atol=1e-6)  # frame 0's features ignore the rest of the batch
+
+
+def _torchvision_style_checkpoint(path, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    sd = {k: (torch.rand(v.shape, generator=g) if v.is_floating_point() else v.clone())
+          for k, v in ResNet18().state_dict().items()}
+    sd["fc.weight"] = torch.rand(1000, 512, generator=g)  # torchvision's file still has the classifier
+    sd["fc.bias"] = torch.rand(1000, generator=g)
+    torch.save(sd, path)
+    return sd
+
+
+def test_weights_load_strictly_from_a_torchvision_layout_file(tmp_path):
+    sd = _torchvision_style_checkpoint(tmp_path / "resnet18.pth")
+    m = ResNet18()
+    assert load_resnet18_weights(m, tmp_path / "resnet18.pth") == str(tmp_path / "resnet18.pth")
+    for k, v in m.state_dict().items():
+        assert torch.equal(v, sd[k]), k
+
+
+def test_weights_from_hub_cache_else_one_warning(tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    m = ResNet18()
+    before = {k: v.clone() for k, v in m.state_dict().items()}
+    with caplog.at_level(logging.WARNING):
+        assert load_resnet18_weights(m) == "random"
+    warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and bb_mod.RESNET18_URL in warnings[0].getMessage()
+    assert all(torch.equal(v, before[k]) for k, v in m.state_dict().items())
+    cached = tmp_path / "hub" / "checkpoints" / "resnet18-f37072fd.pth"
+    cached.parent.mkdir(parents=True)
+    sd = _torchvision_style_checkpoint(cached, seed=1)
+    assert load_resnet18_weights(m) == str(cached)
+    assert torch.equal(m.conv1.weight, sd["conv1.weight"])
+
+
+def test_wrong_weight_files_give_clear_errors(tmp_path):
+    m = ResNet18()
+    with pytest.raises(InputError, match="not found"):
+        load_resnet18_weights(m, tmp_path / "missing.pth")
+    (tmp_path / "text.pth").write_text("not a checkpoint")
+    with pytest.raises(InputError, match="cannot read"):
+        load_resnet18_weights(m, tmp_path / "text.pth")
+    sd = {k: v for k, v in ResNet18().state_dict().items() if not k.startswith("layer4")}
+    torch.save(sd, tmp_path / "partial.pth")
+    with pytest.raises(ConfigError, match="missing keys"):
+        load_resnet18_weights(m, tmp_path / "partial.pth")
+    sd = ResNet18().state_dict()
+    sd["conv1.weight"] = torch.zeros(64, 1, 7, 7)
+    torch.save(sd, tmp_path / "shape.pth")
+    with pytest.raises(ConfigError, match="shape mismatch"):
+        load_resnet18_weights(m, tmp_path / "shape.pth")
+
+
+def test_positional_encoding_matches_the_formula_at_fractional_positions():
+    pe = positional_encoding(torch.tensor([0.0, 3.5]), 512)
+    assert pe.shape == (2, 512)
+    assert torch.allclose(pe[0, 0::2], torch.zeros(256)) and torch.allclose(pe[0, 1::2], torch.ones(256))
+    i = 10  # dimension pair 2i, 2i+1
+    ang = 3.5 / 10000 ** (2 * i / 512)
+    assert math.isclose(pe[1, 2 * i].item(), math.sin(ang), abs_tol=1e-6)
+    assert math.isclose(pe[1, 2 * i + 1].item(), math.cos(ang), abs_tol=1e-6)
+
+
+def test_pose_vectors_ignore_world_origin_and_scale_and_quaternion_sign():
+    rng = np.random.default_rng(0)
+    poses = [Pose.from_center(rng.normal(size=4), rng.normal(size=3)) for _ in range(5)]
+    centers = np.stack([p.center for p in poses])
+    norm = PoseNorm(tuple(centers.mean(0)), 2.0)
+    v = norm.vectors(poses)
+    # the same capture in a world moved by (R0, t0) and scaled by s gives the same network inputs
+    s, t0 = 3.0, np.array([1.0, -2.0, 5.0])
+    R0 = Pose.from_center(np.array([0.9, 0.1, -0.3, 0.2]), np.zeros(3)).R
+    moved = []
+    for p in poses:
+        R = p.R @ R0.T  # world' = s R0 world + t0
+        moved.append(Pose.from_center(rotmat_to_quat(R), s * R0 @ p.center + t0))
+    c2 = np.stack([p.center for p in moved])
+    v2 = PoseNorm(tuple(c2.mean(0)), 2.0 * s).vectors(moved)
+    assert np.allclose(v[:, :3], v2[:, :3], atol=1e-5)
+    assert np.all(v[:, 3] >= 0)
+    flipped = Pose(-poses[0].qvec, poses[0].tvec)
+    assert np.allclose(norm.vector(flipped), v[0])
+    assert np.allclose(np.linalg.norm(v[:, :3], axis=1),
+                       np.linalg.norm(centers - centers.mean(0), axis=1) / 2.0, atol=1e-5)
+
+
+def _net(decoder=None, context=True):
+    torch.manual_seed(0)
+    return CNNLSTM(decoder or FCDecoder((4, 6)), backbone_size=32, context=context).eval()
+
+
+def test_causal_contexts_equal_the_lstm_over_each_full_sequence():
+    net = _net()
+    s = 6
+    feats, vec = torch.randn(s, 512), torch.randn(s, 7)
+    src_pos = np.arange(s, dtype=np.float64)
+    # leave-one-out queries (target t replaced by its query step) ...
+    t = np.array([0, 2, 5])
+    ref = net.contexts_reference(feats, vec, torch.tensor(src_pos).float(), vec[t], torch.tensor(t).float(),
+                                 torch.from_numpy(sequence_layout(s, src_pos, src_pos[t], t)))
+    got = net.contexts(feats, vec, torch.tensor(src_pos).float(), vec[t], torch.tensor(t).float(),
+                       torch.as_tensor(t))
+    assert torch.allclose(got, ref, atol=1e-5)
+    # ... and novel queries at fractional positions among all sources, one sequence each
+    q = np.array([-1.2, 0.5, 3.5, 6.2])
+    qv = torch.randn(4, 7)
+    ref = net.contexts_reference(feats, vec, torch.tensor(src_pos).float(), qv, torch.tensor(q).float(),
+                                 torch.from_numpy(sequence_layout(s, src_pos, q, -np.ones(4, np.int64))))
+    got = net.contexts(feats, vec, torch.tensor(src_pos).float(), qv, torch.tensor(q).float(),
+                       torch.as_tensor(np.searchsorted(src_pos, q, side="right")))
+    assert torch.allclose(got, ref, atol=1e-5)
+
+
+def test_sequence_layout_puts_the_query_in_index_order():
+    with pytest.raises(ValueError, match="ragged"):
+        sequence_layout(4, np.arange(4.0), np.array([2.0, 1.5]), np.array([2, -1]))
+    lay = sequence_layout(4, np.arange(4.0), np.array([2.0]), np.array([2]))
+    assert lay.tolist() == [[0, 1, -1, 3]]
+    lay = sequence_layout(4, np.arange(4.0), np.array([1.5]), np.array([-1]))
+    assert lay.tolist() == [[0, 1, -1, 2, 3]]
+
+
+def test_no_context_ablation_zeroes_the_decoder_input():
+    net = _net(context=False)
+    h = net.contexts(torch.randn(3, 512), torch.randn(3, 7), torch.arange(3.0), torch.randn(2, 7),
+                     torch.tensor([0.5, 1.5]), torch.tensor([1, 2]))
+    assert h.shape == (2, 512) and torch.count_nonzero(h) == 0
+
+
+def test_decoder_shapes_and_initial_sweep_output_is_a_blend_of_sources():
+    fc = FCDecoder((5, 7))
+    assert fc(torch.randn(3, 512)).shape == (3, 3, 5, 7)
+    dec = SweepDecoder(channels=4)
+    x = torch.rand(2, 8, 6, 10, 12)
+    x[:, 6:] = 1.0  # both sources valid everywhere
+    out = dec(x, torch.randn(2, 512))
+    assert out.shape == (2, 3, 10, 12)
+    # untrained residual is zero, so each output pixel is a convex combination of source samples
+    lo = torch.minimum(x[:, 0:3], x[:, 3:6]).amin(2)
+    hi = torch.maximum(x[:, 0:3], x[:, 3:6]).amax(2)
+    assert torch.all(out >= lo - 1e-5) and torch.all(out <= hi + 1e-5)
+    # a full network: encode, contexts, decode
+    net = _net(SweepDecoder(4))
+    f = net.encode(net.backbone_input(torch.rand(3, 3, 20, 30)))
+    assert f.shape == (3, 512)

