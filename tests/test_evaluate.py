@@ -99,7 +99,7 @@ def _hooks():
 
     recs = {"nearest": _NearestRenderer,
             "nerf": lambda sc: nerf_fit(sc, steps=15, batch_rays=256, n_samples=8, levels=(8, 16), hidden=16,
-                                        progress=False)}
+                                        progress=False, threads=1)}
     return dict(network=network, reconstructors=recs), calls
 
 

@@ -86,7 +86,7 @@ class EvalConfig:
     baselines: tuple[str, ...] = ("nearest", "blend", "flow", "planesweep")
     densify_baselines: tuple[str, ...] = ("blend", "flow", "planesweep")
     epochs: int | None = None
-    nerf_steps: int = 1500
+    nerf_steps: int = 1000
     recon_seed: int = 0
     max_eval: int | None = None
     oracle: bool = True
@@ -341,6 +341,14 @@ def _plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[li
     return out, info
 
 
+def scene_name(scene: Scene) -> str:
+    """The capture's folder name (a pose file's folder: ``middlebury_dinoSparseRing``, not ``dinoSR_par.txt``)."""
+    if scene.source is None:
+        return str(scene.meta.get("name", "scene"))
+    src = Path(scene.source)
+    return src.parent.name if src.suffix else src.name
+
+
 def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *,
                    network: Callable[[Scene, int], SynthFn] | None = None,
                    reconstructors: dict[str, Callable[[Scene], object]] | None = None,
@@ -352,7 +360,7 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
     out_dir: where example images are saved (``examples/<scene>/``); None saves none.
     """
     t_start = time.perf_counter()
-    name = Path(scene.source).name if scene.source is not None else scene.meta.get("name", "scene")
+    name = scene_name(scene)
     res: dict = {"name": name, "source": str(scene.source) if scene.source else None, "status": "running",
                  "notes": [], "timings": {}}
     frames_sorted = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError, SparselfError
+from ..errors import SparselfError
 from ..geometry import Pose
 from ..scene import Camera, Scene
 
@@ -133,13 +133,9 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     Raises SparselfError (before any work) when gsplat or CUDA is missing.
     """
     gsplat, torch = _require_gsplat()
-    cfg = config or GsplatConfig()
-    if overrides:
-        cfg = GsplatConfig(**{**cfg.__dict__, **{k: v for k, v in overrides.items() if k in cfg.__dict__}})
-    if len(scene) == 0:
-        raise InputError("gsplat: the scene has no frames to train on")
-    if cfg.max_side:
-        scene = scene.resized(cfg.max_side)
+    from .nerf import prepare_fit
+
+    scene, cfg = prepare_fit(scene, GsplatConfig, config, overrides, "gsplat")
     from tqdm.auto import tqdm
 
     dev = torch.device("cuda")
