@@ -138,7 +138,7 @@ def _add_evaluate(sub) -> None:
     p.add_argument("--recon", default=None, help="reconstructors, comma-separated: mpi,nerf,gsplat (default mpi,nerf)")
     p.add_argument("--epochs", type=int, default=None, help="network training epochs (default: the network's)")
     p.add_argument("--quick", action="store_true",
-                   help="minutes instead of hours on a CPU: 64 px, 1 seed, short NeRF, at most 6 scored frames")
+                   help="minutes instead of hours on a CPU: 64 px, 1 seed, 3 network epochs, short NeRF, at most 6 scored frames")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     _common(p)
     p.set_defaults(func=_run_evaluate)

@@ -247,7 +247,9 @@ def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
         "pose in their gap, which is the ground truth for midpoint view synthesis and the oracle's training image.",
         f"Sparse captures (too few frames for the above, e.g. 16-view Middlebury rings): every "
         f"{settings.get('sparse_holdout_every', 2)}nd interior frame, from the second on, is held out and the rest are "
-        "the inputs. No oracle is run there (the only real frames between inputs are the held-out ones).",
+        "the inputs. No oracle is run there (the only real frames between inputs are the held-out ones), and "
+        "the planned midpoints lie near held-out poses: the N + synth reconstruction gets synthesized (never "
+        "real) views close to the poses it is scored at.",
         f"Densification: each reconstructor is fitted on the N inputs and on N + {settings.get('n_mid', 8)} "
         f"midpoints + {settings.get('n_extra', 2)} extrapolations synthesized by sparself (per seed) and by the "
         "densify baselines; all render the held-out poses.",
