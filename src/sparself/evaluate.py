@@ -346,8 +346,17 @@ def scene_name(scene: Scene) -> str:
     """The capture's folder name (a pose file's folder: ``middlebury_dinoSparseRing``, not ``dinoSR_par.txt``)."""
     if scene.source is None:
         return str(scene.meta.get("name", "scene"))
-    src = Path(scene.source)
-    return src.parent.name if src.suffix else src.name
+    return name_from_source(scene.source)
+
+
+def name_from_source(source: str | Path) -> str:
+    """``.../llff_bird/sparse/0`` -> ``llff_bird``; ``.../dino/dinoSR_par.txt`` -> ``dino``."""
+    src = Path(source)
+    if src.suffix:
+        src = src.parent
+    while (src.name.isdigit() or src.name == "sparse") and src.parent != src:
+        src = src.parent
+    return src.name
 
 
 def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *,

@@ -432,7 +432,8 @@ def conclusions(results: dict) -> list[str]:
                      and _mean_of(s["densification"][r][k], "psnr")[0] is not None]
             if diffs:
                 who = "the real photos (oracle)" if k == "oracle" else f"{k}-synthesized views"
-                out.append(f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average.")
+                out.append(f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average "
+                           f"over the {len(diffs)} scene(s) where both ran.")
     vs = [(s["name"], s.get("view_synthesis", {})) for s in ok]
     for name, v in vs:
         net, _ = _mean_of(v.get(NETWORK), "psnr")
