@@ -176,3 +176,25 @@ def test_cli_evaluate_refuses_an_empty_scene_list(tmp_path, capsys):
     rc = main(["evaluate", "--out", str(tmp_path / "o")])
     assert rc != 0 and "no scenes given" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_cli_evaluate_end_to_end_with_the_real_network(tmp_path, capsys):
+    """sparself evaluate on a capture on disk: reader, CNN-LSTM (1 epoch), baselines, MPI, report."""
+    import torch
+
+    from sparself.cli import main
+    from sparself.io import write_scene
+
+    torch.set_num_threads(1)
+    scene = _capture(tmp_path / "cap_images")
+    write_scene(scene, tmp_path / "cap", formats=("llff",))
+    out = tmp_path / "report"
+    rc = main(["evaluate", str(tmp_path / "cap"), "--out", str(out), "--quick", "--size", "32", "--inputs", "5",
+               "--epochs", "1", "--recon", "mpi", "-q"])
+    assert rc == 0, capsys.readouterr().err
+    data = json.loads((out / "results.json").read_text())
+    s = data["scenes"][0]
+    assert s["status"] == "ok" and s["name"] == "cap"
+    assert "sparself" in s["view_synthesis"] and s["densification"]["mpi"]["status"] == "ok"
+    assert data["settings"]["epochs"] == 1 and data["settings"]["size"] == 32
+    assert "| Scene | mpi N | mpi N+synth | mpi change |" in (out / "report.md").read_text()
