@@ -24,8 +24,29 @@ def check_output_dir(out: Path, overwrite: bool = False) -> None:
     probe = parent
     while not probe.exists():
         probe = probe.parent
-    if not os.access(probe, os.W_OK):
-        raise OutputError(f"{out}: cannot write to {probe}")
+    if not probe.is_dir():
+        raise OutputError(f"{out}: cannot create it, {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK) or not _can_create_in(probe):
+        raise OutputError(f"{out}: cannot write to {probe} (permission denied or read-only)")
+
+
+def _can_create_in(folder: Path) -> bool:
+    """Really try (os.access says yes to root on read-only file systems): make and remove a folder."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".sparself-probe-", dir=folder))
+        return True
+    except OSError:
+        return False
+
+
+def _make_temp(out: Path, make) -> Path:
+    """Create the parent folders and a temporary sibling of ``out`` with ``make(prefix, dir)``;
+    an OSError becomes an OutputError naming ``out``."""
+    try:
+        out.resolve().parent.mkdir(parents=True, exist_ok=True)
+        return Path(make(f".{out.name}.tmp-", out.resolve().parent))
+    except OSError as e:
+        raise OutputError(f"{out}: cannot write there ({e.strerror or e})") from None
 
 
 @contextlib.contextmanager
@@ -33,8 +54,7 @@ def atomic_dir(out: Path, overwrite: bool = False) -> Iterator[Path]:
     """Yield a temporary folder beside ``out``; on success it replaces ``out``, on error it is removed."""
     out = Path(out)
     check_output_dir(out, overwrite)
-    out.resolve().parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.resolve().parent))
+    tmp = _make_temp(out, lambda prefix, d: tempfile.mkdtemp(prefix=prefix, dir=d))
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700
@@ -52,10 +72,15 @@ def atomic_dir(out: Path, overwrite: bool = False) -> Iterator[Path]:
 def atomic_file(path: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; it is renamed to ``path`` on success, removed on error."""
     path = Path(path)
-    path.resolve().parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.resolve().parent, suffix=path.suffix)
-    os.close(fd)
-    tmp = Path(tmp)
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, expected a file path")
+
+    def make(prefix: str, d: Path) -> str:
+        fd, name = tempfile.mkstemp(prefix=prefix, dir=d, suffix=path.suffix)
+        os.close(fd)
+        return name
+
+    tmp = _make_temp(path, make)
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; results should get the usual file mode

@@ -310,6 +310,8 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
 
 def image_size_of(path: Path) -> tuple[int, int]:
     """(W, H) of an image file after EXIF orientation, reading only its header."""
+    if Path(path).is_file() and Path(path).stat().st_size == 0:
+        raise InputError(f"{path}: file is empty (0 bytes)")
     try:
         with Image.open(path) as im:
             w, h = im.size

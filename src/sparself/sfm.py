@@ -167,7 +167,9 @@ def _quiet_colmap(debug: bool) -> Iterator[None]:
     import pycolmap
 
     old = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if debug else 2  # 2 = ERROR
+    # 3 = FATAL only: its ERROR lines ("Failed to create any sparse model") would precede our own one-line
+    # error (RegistrationError) as noise; --debug shows everything
+    pycolmap.logging.minloglevel = 0 if debug else 3
     try:
         yield
     finally:

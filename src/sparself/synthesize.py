@@ -113,7 +113,8 @@ def densify_scene(scene: Scene, targets: list[Frame], images: np.ndarray) -> Sce
 
 @dataclass
 class DensifyConfig:
-    """Options of the whole pipeline. out_size: long side in px of the written scene (None = as read)."""
+    """Options of the whole pipeline. out_size: long side in px of the written scene (None = as read);
+    training runs at that size too (``train.size`` is replaced by it)."""
 
     train: TrainConfig = field(default_factory=TrainConfig)
     plan: object | None = None  # sparself.plan.PlanConfig; None = its defaults
@@ -128,20 +129,17 @@ def _read_input(path: Path, cfg: DensifyConfig) -> Scene:
     from . import io as sio
 
     try:
-        return sio.read_scene(path)
-    except InputError as read_err:
-        from .scene import list_images
+        sio.detect_format(path)
+    except InputError:
+        pass  # no pose file here: a folder of photos (list_images/recover_poses say what is wrong with it)
+    else:
+        return sio.read_scene(path)  # a broken pose file is reported, not silently replaced by SfM
+    from .sfm import SfmConfig, recover_poses
 
-        try:
-            list_images(path)
-        except InputError:
-            raise read_err from None
-        from .sfm import SfmConfig, recover_poses
-
-        log.info("%s: no poses found; recovering them with structure from motion", path)
-        scene, report = recover_poses(path, cfg.sfm or SfmConfig())
-        log.info("%s", report)
-        return scene
+    log.info("%s: no poses found; recovering them with structure from motion", path)
+    scene, report = recover_poses(path, cfg.sfm or SfmConfig())
+    log.info("%s", report)
+    return scene
 
 
 def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) -> Scene:
@@ -163,8 +161,12 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     if cfg.out_size:
         scene = _materialised(scene.resized(cfg.out_size))
     scene, targets = plan_sequence(scene, cfg.plan or PlanConfig())  # sources on the plan's index scale
+    # train at the output resolution: the sweep decoder's windows are in pixels, and training cost depends
+    # on the crop size, not on the image size
+    long_side = max(max(c.width, c.height) for c in scene.cameras.values())
+    tcfg = replace(cfg.train, size=long_side)
     with atomic_dir(out, cfg.overwrite) as tmp:
-        run = train(scene, tmp / "run", cfg.train)
+        run = train(scene, tmp / "run", tcfg)
         images = synthesize(run, scene, targets)
         dense = densify_scene(scene, targets, images)
         sio.write_scene_into(dense, tmp / "scene")
