@@ -405,7 +405,7 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
     if out_dir is not None and cfg.examples > 0:
         ex_dir = Path(out_dir) / "examples" / _safe(name)
         ex_dir.mkdir(parents=True, exist_ok=True)
-        _camera_plot(inputs, planned, eval_targets, ex_dir / "cameras.png", name)
+        _camera_plot(inputs, planned, [_pose_only(full.frames[i]) for i in split.eval], ex_dir / "cameras.png", name)
         res["camera_plot"] = str((ex_dir / "cameras.png").relative_to(out_dir))
     examples = eval_all[: cfg.examples]
     res["examples"] = {}
