@@ -144,9 +144,10 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     pts, cols = _init_points(scene, cfg, rng)
     means = torch.tensor(pts, device=dev)
     # initial scale: distance to the 3 nearest neighbours (log), as in the reference implementation
-    with torch.no_grad():
-        d = torch.cdist(means[:4096], means) if len(means) > 4096 else torch.cdist(means, means)
-        knn = d.topk(4, largest=False).values[:, 1:].mean(1).clamp_min(1e-7)
+    with torch.no_grad():  # on up to 4096 sampled points, in chunks: a full cdist would not fit in memory
+        probe = means[torch.randperm(len(means), device=dev)[:4096]]
+        knn = torch.cat([torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
+                         for c in probe.split(256)]).clamp_min(1e-7)
         s0 = float(torch.log(knn.mean()))
     n = len(means)
     sh0 = (torch.tensor(cols, device=dev) - 0.5) / 0.28209479177387814
