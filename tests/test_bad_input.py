@@ -586,3 +586,168 @@ def test_debug_shows_the_traceback(tmp_path, capsys):
 
     with pytest.raises(InputError, match="no scene found"):
         main(["info", str(tmp_path / "empty"), "--debug"])
+
+
+# ---- train / synthesize: one tiny run shared by the cases ---------------------------------------------------
+
+def _awkward_scene() -> Scene:
+    """6 views, 2 and 3 at the same pose; 01 gray, 02 RGBA, 03 16-bit, 04 EXIF-rotated, 05 at twice
+    the resolution (its own camera, same aspect ratio)."""
+    s = make_scene(6, same=(3,))
+    s.cameras[2] = Camera.pinhole(2 * W, 2 * H, 2 * F)
+    s.frames[5].camera_id = 2
+    s.frames[5].image = texture(2 * H, 2 * W, 5)
+    return s
+
+
+def _make_awkward(folder: Path) -> Path:
+    folder = write_posed(folder, _awkward_scene(), "colmap")
+    img = folder / "images"
+    rgb = {n: np.asarray(Image.open(img / n).convert("RGB")) for n in ("01.png", "02.png", "03.png", "04.png")}
+    Image.fromarray(rgb["01.png"]).convert("L").save(img / "01.png")
+    Image.fromarray(rgb["02.png"]).convert("RGBA").save(img / "02.png")
+    Image.fromarray(rgb["03.png"][..., 0].astype(np.uint16) * 257).save(img / "03.png")
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(rgb["04.png"]).transpose(Image.Transpose.ROTATE_90).save(img / "04.png", exif=exif)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """train -> plan -> synthesize through the CLI on the awkward scene (read-only, hashed)."""
+    need("train", "synthesize")
+    import io
+    import contextlib
+
+    root = tmp_path_factory.mktemp("trained")
+    scene = _make_awkward(root / "scene")
+    hashes = {p: p.read_bytes() for p in scene.rglob("*") if p.is_file()}
+    logs = {}
+    for name, argv in (
+            ("train", ["train", scene, "--out", root / "run", "--epochs", "1", "--size", "32", "--crop", "16",
+                       "--device", "cpu", "--batch-size", "6"]),
+            ("plan", ["plan", scene, "--out", root / "plan.json", "--n-mid", "3", "--n-extra", "1"]),
+            ("synthesize", ["synthesize", root / "run", "--plan", root / "plan.json", "--out", root / "dense"])):
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)  # no division by zero on the identical poses
+            code = main([str(a) for a in argv])
+        logs[name] = err.getvalue()
+        assert code == 0, logs[name]
+    assert {p: p.read_bytes() for p in scene.rglob("*") if p.is_file()} == hashes  # inputs untouched
+    return {"root": root, "scene": scene, "run": root / "run", "plan": root / "plan.json",
+            "dense": root / "dense", "logs": logs}
+
+
+def test_training_converts_images_with_warnings(trained):
+    err = trained["logs"]["train"]
+    for name, what in (("01.png", "L image"), ("02.png", "RGBA image"), ("03.png", "16-bit")):
+        assert any(name in ln and what in ln and "converted to RGB" in ln for ln in err.splitlines()), err
+    rows = (trained["run"] / "train_log.csv").read_text().splitlines()
+    assert len(rows) == 2 and np.isfinite(float(rows[1].split(",")[1]))
+
+
+def test_synthesis_on_identical_poses_and_mixed_sizes(trained):
+    """The dense scene: 6 + 4 views (one midpoint between the identical poses 2 and 3), all finite; the
+    mixed sizes were resized with a warning."""
+    assert "different image sizes" in trained["logs"]["synthesize"] and f"resizing them to {W}x{H}" in \
+        trained["logs"]["synthesize"]
+    dense = read_scene(trained["dense"])
+    assert len(dense) == 10 and sum(f.name.startswith("novel_") for f in dense.frames) == 4
+    assert "novel_0002.50.png" in [f.name for f in dense.frames]
+    for i, f in enumerate(dense.frames):
+        img = dense.load(i)
+        assert np.all(np.isfinite(img)) and img.shape[:2] == (dense.camera(i).height, dense.camera(i).width)
+    assert listing(trained["root"]) == ["dense", "plan.json", "run", "scene"]
+
+
+def synth_failure(capsys, trained, tmp_path, *needles, run_dir=None, plan=None, out=None, extra=(), case=""):
+    if out is None:
+        out = tmp_path / "res" / "out"
+        out.parent.mkdir(parents=True, exist_ok=True)
+    watch = out.parent if out.parent.is_dir() else tmp_path
+    before = listing(watch)
+    code, _, err = run(capsys, "synthesize", run_dir or trained["run"], "--plan", plan or trained["plan"],
+                       "--out", out, "-q", *extra)
+    line = one_error(code, err, "synthesize", *needles, case=case)
+    assert listing(watch) == before
+    return line
+
+
+def test_checkpoint_problems(trained, tmp_path, capsys):
+    import torch
+
+    other = tmp_path / "other_run"
+    shutil.copytree(trained["run"], other)
+    ck = torch.load(other / "checkpoint.pt", weights_only=False)
+    ck["config"]["channels"] += 3  # a checkpoint from another config: every decoder layer changes shape
+    torch.save(ck, other / "checkpoint.pt")
+    synth_failure(capsys, trained, tmp_path, "checkpoint.pt", "does not fit this model", run_dir=other,
+                  case="checkpoint from another config [synthesize]")
+    (other / "checkpoint.pt").write_bytes(b"")
+    synth_failure(capsys, trained, tmp_path, "checkpoint.pt", "cannot read checkpoint", run_dir=other,
+                  case="zero-byte checkpoint [synthesize]")
+    (other / "checkpoint.pt").write_bytes((trained["run"] / "checkpoint.pt").read_bytes()[:2000])
+    synth_failure(capsys, trained, tmp_path, "checkpoint.pt", "cannot read checkpoint", run_dir=other,
+                  case="truncated checkpoint [synthesize]")
+    synth_failure(capsys, trained, tmp_path, "scene", "no checkpoint", run_dir=trained["scene"],
+                  case="not a run folder [synthesize]")
+
+
+def test_resume_with_another_config_is_refused(trained, tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained["run"], run_dir)
+    before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
+    code, _, err = run(capsys, "train", trained["scene"], "--out", run_dir, "--epochs", "2", "--size", "32",
+                       "--crop", "16", "--device", "cpu", "--batch-size", "6", "--decoder", "fc", "--resume", "-q")
+    one_error(code, err, "train", "checkpoint.pt", "different config", "decoder='sweep' (asked: 'fc')",
+              case="--resume with another config [train]")
+    assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before  # the run is left as it was
+    code, _, err = run(capsys, "train", trained["scene"], "--out", tmp_path / "none", "--resume", "-q")
+    one_error(code, err, "train", "checkpoint.pt", "no checkpoint", case="--resume without a run [train]")
+
+
+def _edit_plan(src: Path, dst: Path, edit) -> Path:
+    doc = json.loads(src.read_text())
+    edit(doc["frames"][1])
+    dst.write_text(json.dumps(doc))
+    return dst
+
+
+@pytest.mark.parametrize("case, edit, needles", [
+    ("nan", lambda f: f["tvec"].__setitem__(0, float("nan")), ("invalid plan", "NaN")),
+    ("shape", lambda f: f["qvec"].pop(), ("frame 1", "qvec must have 4 numbers, got 3")),
+    ("camera", lambda f: f.__setitem__("camera_id", 7), ("frame 1", "camera 7 is not a camera of the scene")),
+])
+def test_bad_plan_file(trained, tmp_path, capsys, case, edit, needles):
+    plan = _edit_plan(trained["plan"], tmp_path / "bad_plan.json", edit)
+    synth_failure(capsys, trained, tmp_path, "bad_plan.json", *needles, plan=plan, case=f"plan {case} [synthesize]")
+
+
+def test_mixed_aspect_ratios_are_refused(trained, tmp_path, capsys):
+    s = make_scene(6)
+    s.cameras[2] = Camera.pinhole(H, H, F)
+    s.frames[2].camera_id, s.frames[2].image = 2, texture(H, H, 2)
+    scene = write_posed(tmp_path / "square", s, "colmap")
+    check_failure(capsys, tmp_path / "t", "train", scene, "square", "differ in size", case="mixed aspect [train]")
+    synth_failure(capsys, trained, tmp_path, "square", "different aspect ratios", f"{H}x{H}", f"{W}x{H}",
+                  extra=("--scene", scene), case="mixed aspect [synthesize]")
+
+
+def test_synthesize_output_folder(trained, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("keep me")
+    synth_failure(capsys, trained, tmp_path, str(out), "--overwrite", out=out, case="existing output [synthesize]")
+    assert (out / "old.txt").read_text() == "keep me"
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    synth_failure(capsys, trained, tmp_path, "a_file", "not a folder", out=blocker / "out",
+                  case="unwritable output [synthesize]")
+    synth_failure(capsys, trained, tmp_path, "/proc", out=Path("/proc/sparself_out"),
+                  case="read-only output [synthesize]")
+    code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite",
+                       "-q")
+    assert code == 0, err
+    assert not (out / "old.txt").exists() and (out / "transforms.json").is_file()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -49,6 +50,23 @@ def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_d
     return out
 
 
+def one_size(scene: Scene) -> Scene:
+    """Mixed image sizes: the scene with every camera resized to the most common size (with a warning),
+    as training resizes every view to its --size; different aspect ratios are refused (InputError)."""
+    sizes = {(c.width, c.height) for c in scene.cameras.values()}
+    if len(sizes) <= 1:
+        return scene
+    counts = Counter(scene.image_size(i) for i in range(len(scene)))
+    w, h = max(sizes, key=lambda s: (counts.get(s, 0), s))
+    if any(abs(cw * h - ch * w) > 0.01 * ch * w for cw, ch in sizes):
+        raise InputError(f"{scene.source or 'scene'}: views have different aspect ratios "
+                         f"({', '.join(f'{a}x{b}' for a, b in sorted(sizes))}); use photos of one shape")
+    log.warning("%s: views have different image sizes (%s); resizing them to %dx%d", scene.source or "scene",
+                ", ".join(f"{a}x{b}" for a, b in sorted(sizes)), w, h)
+    return replace(scene, cameras={cid: c if (c.width, c.height) == (w, h) else c.resized(w, h)
+                                   for cid, c in scene.cameras.items()})
+
+
 @torch.no_grad()
 def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
     """Synthesize the views of ``targets`` from the source frames of ``scene``.
@@ -61,6 +79,7 @@ def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
     run = _as_run(run_or_model)
     if not targets:
         return np.zeros((0, 1, 1, 3), np.float32)
+    scene = one_size(scene)
     sizes = {(scene.cameras[t.camera_id].height, scene.cameras[t.camera_id].width) for t in targets}
     if len(sizes) > 1:
         raise InputError(f"targets have different image sizes {sorted(sizes)}; synthesize them separately")
@@ -187,8 +206,10 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
                     overwrite: bool = False) -> Scene:
     """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene."""
     from . import io as sio
+    from .outputs import check_output_dir
     from .plan import load_plan, order_frames, reindexed
 
+    check_output_dir(Path(out), overwrite)  # refuse a bad --out before loading anything
     run = load_run(run_path)
     src_path = scene_path or run.meta.get("scene")
     if not src_path:
