@@ -421,6 +421,7 @@ def test_plan_with_identical_consecutive_poses(tmp_path, capsys):
     scene = write_posed(tmp_path / "scene", make_scene(8, same=(3, 4)), "llff")  # frames 2, 3, 4 coincide
     code, out, err = run(capsys, "plan", scene, "--out", tmp_path / "plan.json", "--n-mid", "7", "--n-extra", "2")
     assert code == 0, err
+    assert "02.png and 03.png have the same pose" in err  # the repeated view is pointed out
     frames = json.loads((tmp_path / "plan.json").read_text())["frames"]
     assert len(frames) == 9
     centers = np.array([f["center"] for f in frames])

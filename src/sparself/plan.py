@@ -233,6 +233,10 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     out: list[Frame] = []
     for g in _choose_gaps(scene, seq, int(cfg.n_mid), cfg.gaps):
         out.append(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], cfg.t_mid))
+        a, b = scene.frames[seq[g]], scene.frames[seq[g + 1]]
+        if np.allclose(a.pose.w2c(), b.pose.w2c(), atol=1e-9):
+            log.warning("%s and %s have the same pose: the midpoint between them repeats it (--gaps largest "
+                        "skips such gaps)", a.name, b.name)
     for k in range(int(cfg.n_extra)):
         t = 1.0 + (k // 2 + 1) * (cfg.t_extra - 1.0)
         if k % 2 == 0:  # past the end: pair (N-2, N-1)
