@@ -175,3 +175,21 @@ def test_cli_train_then_synthesize_a_plan(tmp_path, capsys):
     assert main(["train", str(tmp_path / "capture"), "--out", str(run), "--epochs", "3", "--decoder", "fc",
                  "--resume", "-q"]) == 2
     assert "different config" in capsys.readouterr().err
+
+
+def test_sweep_planes_surround_the_object_of_a_ring_capture():
+    from sparself.geometry import rotmat_to_quat
+    from sparself.train import sweep_depth_bounds
+
+    frames = []
+    for k in range(8):
+        a = 2 * np.pi * k / 8
+        c = 2.0 * np.array([np.cos(a), 0.0, np.sin(a)])
+        z = -c / np.linalg.norm(c)  # looks at the origin
+        x = np.cross([0.0, 1.0, 0.0], z)
+        R = np.stack([x, np.cross(z, x), z])  # world-to-camera rows: camera axes in world
+        frames.append(Frame(f"r{k}", Pose.from_center(rotmat_to_quat(R), c), 1, float(k)))
+    ring = Scene({1: Camera.pinhole(W, H, F)}, frames)
+    near, far = sweep_depth_bounds(ring)
+    assert np.isclose(near, 1.0) and np.isclose(far, 3.0)
+    assert sweep_depth_bounds(plane_scene()) == (1.0, 4.0)  # known bounds win

@@ -300,7 +300,8 @@ def _add_densify(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--n-mid", type=int, default=8, help="midpoints between consecutive views (default 8)")
     p.add_argument("--n-extra", type=int, default=2, help="extrapolated poses past the ends (default 2)")
-    p.add_argument("--out-size", type=int, default=None, help="long side in px of the written scene (default: as read)")
+    p.add_argument("--out-size", type=int, default=None, help="long side in px of the written scene and of training (default: as read; "
+                        "--size is not used by densify)")
     _train_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     _common(p)

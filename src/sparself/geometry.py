@@ -273,3 +273,18 @@ def align_similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarra
 def transform_pose(pose: Pose, s: float, R: np.ndarray, t: np.ndarray) -> Pose:
     """Apply the world similarity X' = s R X + t to a camera: its centre moves, its view rotates."""
     return Pose.from_center(rotmat_to_quat(pose.R @ R.T), s * R @ pose.center + t)
+
+
+def nearest_point_to_axes(centers: np.ndarray, axes: np.ndarray, max_cond: float = 1e6) -> np.ndarray | None:
+    """Least-squares point closest to the lines ``centers[i] + s axes[i]`` (unit axes), e.g. the point
+    that the cameras of a ring capture look at. centers, axes: (N, 3). None when the lines are (nearly)
+    parallel (condition number above ``max_cond``)."""
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for o, d in zip(np.asarray(centers, np.float64), np.asarray(axes, np.float64)):
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ o
+    if np.linalg.cond(A) >= max_cond:
+        return None
+    return np.linalg.solve(A, b)

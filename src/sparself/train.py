@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 
 from .errors import ConfigError, InputError
-from .geometry import inverse_depth_planes
+from .geometry import inverse_depth_planes, nearest_point_to_axes
 from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights, sweep_volume
 from .model.decoders import DECODERS
 from .outputs import atomic_file, check_output_dir
@@ -54,6 +54,8 @@ class TrainConfig:
     batch_size: leave-one-out targets per optimisation step; an epoch visits every training frame once.
     planes: depth planes of the sweep volume (uniform in disparity over the scene's depth bounds).
     channels: feature channels of the sweep decoder's 3D CNN.
+    windows: box-filter sides (px) of the matching cost the sweep decoder sees, one input channel each.
+    extra_layers: additional 3x3x3 conv layers in the sweep decoder.
     fc_side: long side in px of the fc decoder's output grid (upsampled to the target size).
     context: False zeroes the LSTM output given to the decoder (ablation).
     finetune_backbone: train ResNet-18 end to end (the paper); None = auto: yes on CUDA, no on CPU, where
@@ -70,6 +72,8 @@ class TrainConfig:
     lr: float = 1e-3
     planes: int = 24
     channels: int = 8
+    windows: tuple[int, ...] = (5,)
+    extra_layers: int = 0
     fc_side: int = 48
     context: bool = True
     finetune_backbone: bool | None = None
@@ -81,6 +85,9 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         self.holdout = tuple(int(i) for i in self.holdout)
+        self.windows = tuple(int(k) for k in self.windows)
+        if not self.windows or any(k < 1 or k % 2 == 0 for k in self.windows):
+            raise ConfigError(f"windows must be odd sizes >= 1, got {self.windows}")
         if self.decoder not in DECODERS:
             raise ConfigError(f"unknown decoder {self.decoder!r}; choose one of {', '.join(DECODERS)}")
         for name in ("epochs", "size", "crop", "batch_size", "planes", "channels", "fc_side", "checkpoint_every"):
@@ -92,6 +99,7 @@ class TrainConfig:
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
         d["holdout"] = list(self.holdout)
+        d["windows"] = list(self.windows)
         return d
 
     @classmethod
@@ -160,6 +168,23 @@ def scene_tensors(scene: Scene) -> dict:
     }
 
 
+def sweep_depth_bounds(scene: Scene) -> tuple[float, float]:
+    """(near, far) for the sweep planes: ``Scene.depth_bounds()`` when the scene knows its bounds or sparse
+    points; otherwise, for cameras that look at a common point (a ring or an object capture, e.g.
+    Middlebury), 0.5x to 1.5x the range of camera distances to the point nearest all optical axes, which
+    puts the planes around the object instead of over a wide guessed range."""
+    if scene.bounds is not None or (scene.points is not None and len(scene.points) >= 10):
+        return scene.depth_bounds()
+    c = scene.centers()
+    dirs = np.stack([f.pose.R[2] for f in scene.frames])  # optical axes in world coordinates
+    x = nearest_point_to_axes(c, dirs)
+    if x is not None:
+        z = np.einsum("ij,ij->i", x - c, dirs)  # depth of the point in each camera
+        if np.all(z > 0):
+            return float(0.5 * z.min()), float(1.5 * z.max())
+    return scene.depth_bounds()
+
+
 def fc_grid(width: int, height: int, side: int) -> tuple[int, int]:
     """(h, w) of the fc decoder's output: long side ``side``, the images' aspect ratio."""
     s = side / max(width, height)
@@ -169,7 +194,8 @@ def fc_grid(width: int, height: int, side: int) -> tuple[int, int]:
 # ---- model construction and checkpoints ------------------------------------------------------------
 
 def build_model(cfg: TrainConfig, meta: dict) -> CNNLSTM:
-    dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta["fc_hw"]))
+    dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta["fc_hw"]), windows=cfg.windows,
+                        extra_layers=cfg.extra_layers)
     return CNNLSTM(dec, backbone_size=meta["backbone_size"], context=cfg.context)
 
 
@@ -345,7 +371,7 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict,
         raise InputError(f"training frames of {scene.source} differ in size ({e}); resize them first") from None
     centers = np.stack([p.center for p in st["poses"]])
     norm = PoseNorm(tuple(float(v) for v in centers.mean(0)), float(src.scale()))
-    near, far = src.depth_bounds()
+    near, far = sweep_depth_bounds(src)
     _, _, h, w = st["images"].shape
     bb_size = cfg.backbone_size or (224 if device.type == "cuda" else 64)
     meta = {"center": list(norm.center), "scale": norm.scale, "near": near, "far": far,

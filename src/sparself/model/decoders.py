@@ -54,16 +54,24 @@ class SweepDecoder(nn.Module):
     Input x: (B, 8, D, h, w) from :func:`sweep_volume`; ctx: (B, 512). Output (B, 3, h, w):
     sum_d p_d (a_d c1_d + (1 - a_d) c2_d) over valid samples (p = softmax over the D planes, a = blend
     weight per plane), plus a small 2D residual. Per voxel the CNN sees the photo-consistency of the two
-    sources (their colour difference, raw and box-filtered over ``window`` px, as in plane-sweep stereo) and
-    their validity; the box filter gives a wide matching window for little compute (2 CPU cores).
+    sources (their colour difference, raw and box-filtered over each of ``windows`` px, as in plane-sweep
+    stereo) and their validity; the box filter gives a wide matching window for little compute (2 CPU
+    cores). The depth logits add a plane-sweep prior, -cost_scale x the box-filtered cost, so the untrained
+    decoder is already a soft winner-take-all sweep and training learns corrections (which matters when
+    a capture has few frames to learn from).
     """
 
-    def __init__(self, channels: int = 8, hidden: int = 512, residual: bool = True, window: int = 5) -> None:
+    def __init__(self, channels: int = 8, hidden: int = 512, residual: bool = True, windows=(5,),
+                 extra_layers: int = 0, cost_scale: float = 30.0) -> None:
         super().__init__()
         c = channels
-        self.window = int(window)
-        self.conv_in = nn.Conv3d(4, c, 3, padding=1)
+        self.windows = tuple(int(k) for k in windows)
+        self.conv_in = nn.Conv3d(3 + len(self.windows), c, 3, padding=1)
+        self.extra = nn.ModuleList(nn.Conv3d(c, c, 3, padding=1) for _ in range(int(extra_layers)))
         self.conv_out = nn.Conv3d(c, 2, 3, padding=1)
+        # depth prior: logits start as -cost_scale * (box-filtered matching cost), i.e. the network starts as a
+        # soft winner-take-all plane sweep and learns corrections (converges with few training frames)
+        self.cost_scale = nn.Parameter(torch.tensor(float(cost_scale)))
         self.film = nn.Linear(hidden, 2 * c)
         nn.init.zeros_(self.film.weight)  # FiLM starts as the identity
         nn.init.zeros_(self.film.bias)
@@ -79,15 +87,18 @@ class SweepDecoder(nn.Module):
         b, _, d, h, w = x.shape
         both = v1 * v2
         diff = (c1 - c2).abs().mean(1, keepdim=True) * both + (1 - both)  # unseen counts as mismatch
-        k = self.window
-        box = F.avg_pool2d(diff.permute(0, 2, 1, 3, 4).reshape(b * d, 1, h, w), k, 1, k // 2,
-                           count_include_pad=False).reshape(b, d, 1, h, w).permute(0, 2, 1, 3, 4)
-        feat = torch.cat([diff, box, v1, v2], 1).contiguous(memory_format=torch.channels_last_3d)
+        flat = diff.permute(0, 2, 1, 3, 4).reshape(b * d, 1, h, w)
+        boxes = [F.avg_pool2d(flat, k, 1, k // 2, count_include_pad=False).reshape(b, d, 1, h, w)
+                 .permute(0, 2, 1, 3, 4) for k in self.windows]
+        feat = torch.cat([diff, *boxes, v1, v2], 1).contiguous(memory_format=torch.channels_last_3d)
         hid = self.conv_in(feat)
         g, beta = self.film(ctx).chunk(2, dim=1)
         hid = F.relu(hid * (1 + g[:, :, None, None, None]) + beta[:, :, None, None, None])
+        for conv in self.extra:
+            hid = F.relu(conv(hid))
         logits = self.conv_out(hid)  # (B, 2, D, h, w)
-        p = torch.softmax(logits[:, 0], dim=1)[:, None]  # over depth
+        prior = -self.cost_scale * torch.stack(boxes).mean(0)[:, 0]  # (B, D, h, w)
+        p = torch.softmax(logits[:, 0] + prior, dim=1)[:, None]  # over depth
         a = torch.sigmoid(logits[:, 1])[:, None]
         w1, w2 = a * v1, (1 - a) * v2
         colour = (w1 * c1 + w2 * c2) / (w1 + w2).clamp(min=1e-6)
@@ -99,9 +110,10 @@ class SweepDecoder(nn.Module):
         return out
 
 
-def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32)) -> nn.Module:
+def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32), windows=(5,),
+                  extra_layers: int = 0) -> nn.Module:
     if name == "sweep":
-        return SweepDecoder(channels)
+        return SweepDecoder(channels, windows=windows, extra_layers=extra_layers)
     if name == "fc":
         return FCDecoder(fc_hw)
     raise ValueError(f"unknown decoder {name!r}; choose one of {', '.join(DECODERS)}")
