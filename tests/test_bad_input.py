@@ -378,6 +378,8 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
         os.chmod(d, 0o755)
     assert code == 0, err
     assert "registered 8 of 9 images; not registered: zz_noise.png" in out
+    assert "WARNING: sfm: registered 8 of 9 images; not registered: zz_noise.png" in err  # seen with -q too
+    assert "WARNING: sfm: registered 8 of 9 images; not registered: zz_noise.png" in err  # seen with -q too
     assert {p.name: p.read_bytes() for p in d.iterdir()} == hashes
     rep = json.loads((tmp_path / "scene" / "sfm_report.json").read_text())
     assert rep["unregistered"] == ["zz_noise.png"]
@@ -452,6 +454,8 @@ def test_500_views_plan_fast_with_linear_memory(tmp_path, capsys):
     wall = time.perf_counter() - t0
     assert code == 0 and "planned 10 novel poses" in out, err
     assert wall < 30.0, f"plan on 500 views took {wall:.1f} s"  # measured ~1 s; generous for a busy machine
+    code, out, err = run(capsys, "info", folder)
+    assert code == 0 and "views:         500" in out, err
     tracemalloc.start()
     plan_poses(scene, PlanConfig(order="nearest"))
     _, peak = tracemalloc.get_traced_memory()

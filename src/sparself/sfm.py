@@ -285,7 +285,9 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
                        num_models=len(recs), num_points=best.num_points3D(),
                        mean_reprojection_error=float(best.compute_mean_reprojection_error()), timings=timings)
     scene.meta.update(format="sfm", unregistered=unregistered, sfm_report=report)
-    log.info("sfm: %s (%d model(s); %.1f s)", report.summary(), len(recs), sum(timings.values()))
+    # a warning when photos were dropped, so that it is seen even with -q (and by densify, which goes on)
+    log.log(logging.WARNING if unregistered else logging.INFO, "sfm: %s (%d model(s); %.1f s)", report.summary(),
+            len(recs), sum(timings.values()))
     if len(registered) < 3:
         raise RegistrationError(f"{folder}: only {len(registered)} of {len(names)} images could be registered "
                                 f"({', '.join(registered) or 'none'}); need at least 3. Not registered: "

@@ -156,8 +156,7 @@ def _read_input(path: Path, cfg: DensifyConfig) -> Scene:
     from .sfm import SfmConfig, recover_poses
 
     log.info("%s: no poses found; recovering them with structure from motion", path)
-    scene, report = recover_poses(path, cfg.sfm or SfmConfig())
-    log.info("%s", report)
+    scene, _ = recover_poses(path, cfg.sfm or SfmConfig())  # it logs what was registered and what not
     return scene
 
 
