@@ -20,8 +20,12 @@ def check_output_dir(out: Path, overwrite: bool = False) -> None:
         raise OutputError(f"{out}: exists and is not a folder")
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise OutputError(f"{out}: folder exists and is not empty (use --overwrite to replace it)")
-    parent = out.resolve().parent
-    probe = parent
+    _check_parent(out)
+
+
+def _check_parent(out: Path) -> None:
+    """The nearest existing ancestor of ``out`` must be a folder we can create things in."""
+    probe = Path(out).resolve().parent
     while not probe.exists():
         probe = probe.parent
     if not probe.is_dir():
@@ -74,6 +78,7 @@ def atomic_file(path: Path) -> Iterator[Path]:
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path}: is a folder, expected a file path")
+    _check_parent(path)
 
     def make(prefix: str, d: Path) -> str:
         fd, name = tempfile.mkstemp(prefix=prefix, dir=d, suffix=path.suffix)
