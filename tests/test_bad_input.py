@@ -518,8 +518,9 @@ POSE_FILES = {  # case -> (format, edit, how, words the message must hold)
     "llff_shape": ("llff", _edit_llff, "shape", ("poses_bounds.npy", "(N, 17)", "(6, 15)")),
     "transforms_nan": ("nerfstudio", _edit_transforms, "nan", ("transforms.json", "frame 2", "NaN or inf")),
     "transforms_shape": ("nerfstudio", _edit_transforms, "shape", ("transforms.json", "frame 2", "4x4", "(3, 3)")),
-    "colmap_nan": ("colmap_text", _edit_colmap_text, "nan", ("sparse/0", "cannot read COLMAP model")),
-    "colmap_shape": ("colmap_text", _edit_colmap_text, "shape", ("sparse/0", "cannot read COLMAP model")),
+    "colmap_nan": ("colmap_text", _edit_colmap_text, "nan", ("sparse/0/images.txt", "line 5", "NaN or inf")),
+    "colmap_shape": ("colmap_text", _edit_colmap_text, "shape", ("sparse/0/images.txt", "line 5 has 9 fields",
+                                                                 "expected IMAGE_ID QW QX QY QZ TX TY TZ")),
     "middlebury_inf": ("middlebury", _edit_middlebury, "inf", ("scene_par.txt", "line 4", "NaN or inf")),
     "middlebury_shape": ("middlebury", _edit_middlebury, "shape", ("scene_par.txt", "line 4", "21 fields")),
 }

@@ -49,6 +49,38 @@ def _check_model_files(model_dir: Path) -> None:
         f = b if b.is_file() else t
         if f.stat().st_size == 0 and stem != "points3D":
             raise InputError(f"{f}: file is empty (0 bytes)")
+        if f is t and stem in _TEXT_LAYOUT:
+            _check_text_model(t, stem)
+
+
+_TEXT_LAYOUT = {"cameras": "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]",
+                "images": "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"}
+
+
+def _check_text_model(path: Path, stem: str) -> None:
+    """Readable errors for a malformed cameras.txt / images.txt (pycolmap reports C++ assertion text):
+    each camera line and each image pose line must have its fields, as finite numbers."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read ({e})") from None
+    k = 0
+    while k < len(lines):
+        fields = lines[k].split()
+        k += 1
+        if not fields or fields[0].startswith("#"):
+            continue
+        where = f"{path}: line {k}"
+        if len(fields) < (5 if stem == "cameras" else 10):
+            raise InputError(f"{where} has {len(fields)} fields, expected {_TEXT_LAYOUT[stem]}")
+        nums = fields[:1] + fields[2:] if stem == "cameras" else fields[:9]
+        try:
+            vals = np.array([float(v) for v in nums])
+        except ValueError:
+            raise InputError(f"{where} has a non-numeric value (expected {_TEXT_LAYOUT[stem]})") from None
+        check_finite(vals, where)
+        if stem == "images":
+            k += 1  # the next line lists the image's 2D points (possibly empty)
 
 
 def load_reconstruction(model_dir: Path):
