@@ -757,3 +757,22 @@ def test_synthesize_output_folder(trained, tmp_path, capsys):
                        "-q")
     assert code == 0, err
     assert not (out / "old.txt").exists() and (out / "transforms.json").is_file()
+
+
+def test_memory_estimate_before_training(trained, caplog):
+    """Logged by every training run (here: the fixture's); 500 views at 1024 px: the images alone need
+    500 x 3 x 1024 x 768 float32 = 4.4 GiB, estimated from the cameras without decoding anything, and
+    a machine with 8 GiB free gets a warning."""
+    import torch
+
+    from sparself.train import TrainConfig, log_memory_estimate, memory_estimate
+
+    assert "INFO: training memory estimate: ~" in trained["logs"]["train"]
+    cam = Camera.pinhole(4032, 3024, 3000.0)  # phone photos
+    big = Scene({1: cam}, [Frame(f"{i:03d}.jpg", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([i, 0.0, 0])),
+                                 1, float(i), Path("/nonexistent") / f"{i:03d}.jpg") for i in range(500)])
+    est = memory_estimate(big.resized(1024), TrainConfig(size=1024), torch.device("cpu"))
+    assert est["images"] == 500 * 3 * 1024 * 768 * 4 and est["total"] > est["images"]
+    with caplog.at_level("INFO", logger="sparself"):
+        log_memory_estimate(est, torch.device("cpu"), available=8 * 2**30)
+    assert [r.levelname for r in caplog.records] == ["WARNING"] and "lower --size" in caplog.records[0].getMessage()

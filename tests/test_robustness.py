@@ -92,6 +92,19 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
         return [ln.split(",")[:2] for ln in (p / "train_log.csv").read_text().splitlines()]
     assert losses(part) == losses(full) and len(losses(full)) == 8
 
+    # killed before the first checkpoint (what a kill in epochs 1-5 leaves: config and a partial log):
+    # --resume starts again and ends the same
+    early = tmp_path / "early"
+    early.mkdir()
+    (early / "config.json").write_bytes((full / "config.json").read_bytes())
+    (early / "train_log.csv").write_text("\n".join((full / "train_log.csv").read_text().splitlines()[:3]) + "\n")
+    again = subprocess.run(cli("train", scene, "--out", early, "--epochs", "7", *TRAIN, "--resume", "-q"), env=ENV,
+                           capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and "no checkpoint yet" in again.stderr, again.stderr
+    c = _weights(early / "checkpoint.pt")
+    assert c["epoch"] == 7 and all(torch.equal(a["model"][k], c["model"][k]) for k in a["model"])
+    assert losses(early) == losses(full)
+
 
 def test_same_seed_twice_gives_byte_identical_images(scene, tmp_path, capsys):
     """``sparself densify`` twice with the same seed: every written image and pose file is identical."""

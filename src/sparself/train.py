@@ -355,6 +355,51 @@ def predict_leave_one_out(run: Run, scene: Scene, targets: list[int]) -> np.ndar
     return pred.clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy()
 
 
+def memory_estimate(small: Scene, cfg: TrainConfig, device: torch.device) -> dict[str, int]:
+    """Rough bytes training will hold, from image sizes only (nothing is decoded). small: the training
+    frames already resized to ``cfg.size``. Terms: the images as float32 tensors (exact); the backbone
+    inputs, plus ~40 MB per view at 224 px of ResNet-18 activations when it is fine-tuned (a rule of thumb,
+    scaled by area); weights, gradients and Adam moments (4 x 11.7 M float32 for ResNet-18 + the rest);
+    one batch of sweep volumes (8 values x planes x crop^2) through the 3D CNN, kept for backward."""
+    n = len(small)
+    w, h = max(small.image_size(i) for i in range(n)) if n else (0, 0)
+    bb = cfg.backbone_size or (224 if device.type == "cuda" else 64)
+    finetune = cfg.finetune_backbone if cfg.finetune_backbone is not None else device.type == "cuda"
+    c = min(cfg.crop, h, w)
+    est = {
+        "images": n * 3 * h * w * 4,
+        "backbone": n * 3 * bb * bb * 4 + (int(n * 40e6 * (bb / 224) ** 2) if finetune else 0),
+        "parameters": 4 * 4 * 12_000_000,
+        "sweep": cfg.batch_size * 8 * cfg.planes * c * c * 4 * (1 + 2 * cfg.channels) if cfg.decoder == "sweep" else 0,
+    }
+    est["total"] = sum(est.values())
+    return est
+
+
+def _available_memory(device: torch.device) -> int | None:
+    try:
+        if device.type == "cuda":
+            return int(torch.cuda.mem_get_info(device)[0])
+        import os
+
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, RuntimeError, AttributeError):
+        return None
+
+
+def log_memory_estimate(est: dict[str, int], device: torch.device, available: int | None = None) -> None:
+    """Log the estimate (info); a warning when it exceeds half of the free memory of ``device``."""
+    mb = {k: v / 2**20 for k, v in est.items()}
+    text = (f"training memory estimate: ~{mb['total']:.0f} MB (images {mb['images']:.0f}, backbone "
+            f"{mb['backbone']:.0f}, parameters {mb['parameters']:.0f}, sweep batch {mb['sweep']:.0f} MB)")
+    free = available if available is not None else _available_memory(device)
+    if free is not None and est["total"] > free / 2:
+        log.warning("%s, more than half of the %.0f MB free on %s: lower --size or use fewer views",
+                    text, free / 2**20, device.type)
+    else:
+        log.info("%s", text)
+
+
 def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict, dict]:
     """Training tensors and run metadata from the training frames (holdout removed, never loaded)."""
     bad = [i for i in cfg.holdout if not 0 <= i < len(scene)]
@@ -365,6 +410,7 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict,
         raise InputError(f"need at least 3 training frames, got {len(keep)} (scene {scene.source})")
     src = scene.subset(keep)
     small = src.resized(cfg.size)
+    log_memory_estimate(memory_estimate(small, cfg, device), device)  # before any image is loaded
     try:
         st = scene_tensors(small)
     except ValueError as e:
@@ -402,6 +448,10 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     out = Path(out)
     device = resolve_device(cfg.device)
     ck = None
+    if resume and not (out / CHECKPOINT).exists() and (out / CONFIG).is_file():
+        # killed before its first checkpoint: nothing to continue from, so the run starts again
+        log.warning("%s: no checkpoint yet (the run stopped before its first one); starting from epoch 0", out)
+        resume, overwrite = False, True
     if resume:
         ck = _read_checkpoint(out / CHECKPOINT)
         saved = TrainConfig.from_json(ck["config"])
