@@ -60,15 +60,15 @@ def _weights(path: Path) -> dict:
 
 
 def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
-    """Train 7 epochs (checkpoints at 5 and 7) uninterrupted, and again killed with SIGKILL right after
+    """Train 9 epochs (checkpoints at 5 and 9) uninterrupted, and again killed with SIGKILL right after
     the epoch-5 checkpoint appears; ``--resume`` then finishes with bit-identical weights and log."""
     need("train")
     import torch
 
     full, part = tmp_path / "full", tmp_path / "part"
-    uninterrupted = subprocess.Popen(cli("train", scene, "--out", full, "--epochs", "7", *TRAIN, "-q"), env=ENV,
+    uninterrupted = subprocess.Popen(cli("train", scene, "--out", full, "--epochs", "9", *TRAIN, "-q"), env=ENV,
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    killed = subprocess.Popen(cli("train", scene, "--out", part, "--epochs", "7", *TRAIN, "-q"), env=ENV,
+    killed = subprocess.Popen(cli("train", scene, "--out", part, "--epochs", "9", *TRAIN, "-q"), env=ENV,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     t0 = time.monotonic()
     while not (part / "checkpoint.pt").exists() and killed.poll() is None and time.monotonic() - t0 < 60:
@@ -79,18 +79,18 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
     assert killed.returncode == -signal.SIGKILL
     _, err = uninterrupted.communicate(timeout=120)
     assert uninterrupted.returncode == 0, err.decode()
-    resumed = subprocess.run(cli("train", scene, "--out", part, "--epochs", "7", *TRAIN, "--resume", "-q"), env=ENV,
+    resumed = subprocess.run(cli("train", scene, "--out", part, "--epochs", "9", *TRAIN, "--resume", "-q"), env=ENV,
                              capture_output=True, text=True, timeout=120)
     assert resumed.returncode == 0, resumed.stderr
     a, b = _weights(full / "checkpoint.pt"), _weights(part / "checkpoint.pt")
-    assert a["epoch"] == b["epoch"] == 7
+    assert a["epoch"] == b["epoch"] == 9
     assert a["model"].keys() == b["model"].keys()
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
     # the log of the resumed run has each epoch once, with the uninterrupted run's losses
     def losses(p):
         return [ln.split(",")[:2] for ln in (p / "train_log.csv").read_text().splitlines()]
-    assert losses(part) == losses(full) and len(losses(full)) == 8
+    assert losses(part) == losses(full) and len(losses(full)) == 10
 
     # killed before the first checkpoint (what a kill in epochs 1-5 leaves: config and a partial log):
     # --resume starts again and ends the same
@@ -98,11 +98,11 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
     early.mkdir()
     (early / "config.json").write_bytes((full / "config.json").read_bytes())
     (early / "train_log.csv").write_text("\n".join((full / "train_log.csv").read_text().splitlines()[:3]) + "\n")
-    again = subprocess.run(cli("train", scene, "--out", early, "--epochs", "7", *TRAIN, "--resume", "-q"), env=ENV,
+    again = subprocess.run(cli("train", scene, "--out", early, "--epochs", "9", *TRAIN, "--resume", "-q"), env=ENV,
                            capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and "no checkpoint yet" in again.stderr, again.stderr
     c = _weights(early / "checkpoint.pt")
-    assert c["epoch"] == 7 and all(torch.equal(a["model"][k], c["model"][k]) for k in a["model"])
+    assert c["epoch"] == 9 and all(torch.equal(a["model"][k], c["model"][k]) for k in a["model"])
     assert losses(early) == losses(full)
 
 
