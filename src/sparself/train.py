@@ -6,12 +6,14 @@ in ``holdout`` are removed from the scene before anything is loaded, so their im
 
 A run folder holds ``checkpoint.pt`` (model, optimizer, grad scaler, RNG states, epoch; written
 atomically every ``checkpoint_every`` epochs and at the end), ``config.json`` (the :class:`TrainConfig`)
-and ``train_log.csv`` (epoch, mean loss, wall seconds, CPU seconds of this process). ``resume=True`` continues from the checkpoint and ends with
-the same weights as an uninterrupted run (same seed, CPU).
+and ``train_log.csv`` (epoch, mean loss, wall seconds, CPU seconds of this process). ``resume=True``
+continues from the checkpoint and ends with the same weights as an uninterrupted run (same seed, CPU).
 
-CPU defaults (2 cores, 25 images): training images at 128 px on their long side, 32 px crops, backbone
-input 64 px and frozen (features computed once), batch 8 targets, 100 epochs (4 steps each). On CUDA the
-backbone input is 224 px (the paper's) and it is fine-tuned end to end.
+CPU defaults (2 cores, 25 images): training images at 128 px on their long side, 64 px crops, backbone
+input 64 px and frozen (features computed once), batch 8 targets, 100 epochs (4 steps each), 24 sweep
+planes, 8 channels, Adam lr 1e-3, MSE. On CUDA the backbone input is 224 px (the paper's) and it is
+fine-tuned end to end, with fp16 autocast and gradient scaling. Measured on llff_bird (25 inputs, 1/4
+resolution): about 240 CPU-seconds single-threaded for 100 epochs.
 """
 
 from __future__ import annotations
@@ -66,7 +68,7 @@ class TrainConfig:
     decoder: str = "sweep"
     epochs: int = 100
     size: int = 128
-    crop: int = 32
+    crop: int = 64
     backbone_size: int = 0
     batch_size: int = 8
     lr: float = 1e-3
