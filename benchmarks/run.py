@@ -161,13 +161,15 @@ def _mem(cuda: bool, base_rss: float) -> dict:
     return out
 
 
-def train_config(device: str, epochs: int):
-    """The configuration the benchmark trains: the CPU defaults at 128 px, or the paper's on GPU."""
+def train_config(device: str, epochs: int, extra: dict | None = None):
+    """The configuration the benchmark trains: the CPU defaults at 128 px, or the paper's on GPU.
+    extra: TrainConfig fields given on the command line (--amp, --compile)."""
     from sparself.train import TrainConfig
 
+    extra = extra or {}
     if device == "cuda":  # the paper's setting: 224 px input, ResNet-18 fine-tuned end to end
-        return TrainConfig(epochs=epochs, size=224, backbone_size=224, device="cuda")
-    return TrainConfig(epochs=epochs, size=128, device="cpu")
+        return TrainConfig(epochs=epochs, size=224, backbone_size=224, device="cuda", **extra)
+    return TrainConfig(epochs=epochs, size=128, device="cpu", **extra)
 
 
 # ---- stages (each runs in its own process) -----------------------------------------------------------
@@ -183,7 +185,7 @@ def stage_train(p: dict) -> dict:
     target_epochs = train_config(dev, 100).epochs
     epochs = p["epochs"] or target_epochs
     scene = bench_scene(25, 224 if cuda else 128)
-    cfg = train_config(dev, epochs)
+    cfg = train_config(dev, epochs, p.get("extra"))
     ck_times = []
     save = tr._save_checkpoint
 
@@ -215,7 +217,8 @@ def stage_train(p: dict) -> dict:
             "est_total_wall": est if epochs != target_epochs else c.wall,
             "est_total_cpu": est_cpu if epochs != target_epochs else c.cpu,
             "views": len(scene), "hw": list(scene.load(0).shape[:2]), "device": dev,
-            "backbone": f"{train_config(dev, 1).backbone_size or (224 if cuda else 64)} px", **_mem(cuda, base)}
+            "backbone": f"{cfg.backbone_size or (224 if cuda else 64)} px", "amp": cfg.amp, "compile": cfg.compile,
+            **_mem(cuda, base)}
 
 
 def stage_infer(p: dict) -> dict:
@@ -280,7 +283,7 @@ def stage_scale(p: dict) -> dict:
         with Clock() as c:
             sources, targets = plan_sequence(scene, PlanConfig())
         plans.append(c.wall)
-    cfg = train_config(dev, p["epochs"])
+    cfg = train_config(dev, p["epochs"], p.get("extra"))
     with tempfile.TemporaryDirectory() as d:
         run = tr.train(sources, Path(d) / "run", cfg, progress=False)
         import csv
@@ -357,7 +360,8 @@ def table(res: dict, env: dict) -> str:
     lines = [
         f"sparself benchmark, mode `{env['mode']}`, {env['date']}",
         "",
-        f"- machine: {env['machine']}; torch {env['torch']}; device **{env['device']}**; torch threads {env['threads']}",
+        f"- machine: {env['machine']}; torch {env['torch']}; device **{env['device']}**; torch threads "
+        f"{env['threads']}; amp {env['amp']}; compile {env['compile']}",
         f"- load average (1 min) before / after: {env['load_before']:.2f} / {env['load_after']:.2f} on "
         f"{env['cores']} cores{' — CONTENDED: other processes shared the cores, timings are inflated' if max(env['load_before'], env['load_after']) > env['cores'] * 0.75 else ''}",
         f"- data: {env['data']}",
@@ -435,6 +439,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1), help="torch threads (default 2)")
     ap.add_argument("--stages", default="train,infer,poses,scale", help="comma-separated subset to run")
     ap.add_argument("--json", type=Path, help="also write the raw results as JSON")
+    ap.add_argument("--amp", choices=("auto", "off", "fp16", "bf16"), default="auto",
+                    help="TrainConfig.amp (auto: fp16 + gradient scaling on CUDA, float32 on CPU)")
+    ap.add_argument("--compile", action="store_true", help="TrainConfig.compile: torch.compile backbone and decoder")
     ap.add_argument("--stage", help=argparse.SUPPRESS)
     ap.add_argument("--params", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -448,7 +455,7 @@ def main(argv=None) -> int:
     dev = "cuda" if args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available()) else "cpu"
     stages = [s.strip() for s in args.stages.split(",") if s.strip()]
     env = {"mode": mode, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "torch": torch.__version__,
-           "device": dev, "threads": args.threads, "cores": os.cpu_count(), "load_before": os.getloadavg()[0],
+           "device": dev, "threads": args.threads, "amp": args.amp, "compile": args.compile, "cores": os.cpu_count(), "load_before": os.getloadavg()[0],
            "machine": (torch.cuda.get_device_name(0) if dev == "cuda" else platform.processor() or platform.machine()),
            "data": (f"{BIRD} (25 views = every 7th frame)" if BIRD.is_dir() else
                     "synthetic textured plane (../shared/data/llff_bird not found)")}
@@ -456,7 +463,8 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         run = str(Path(d) / "run")
-        common = {"device": dev, "reps": m["reps"]}
+        extra = {k: v for k, v in (("amp", args.amp), ("compile", args.compile)) if v not in ("auto", False)}
+        common = {"device": dev, "reps": m["reps"], "extra": extra}
         if "train" in stages or "infer" in stages:
             print(f"[bench] train ({'all' if m['train_epochs'] is None else m['train_epochs']} epochs) ...",
                   file=sys.stderr, flush=True)
