@@ -48,7 +48,14 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     level = logging.DEBUG if args.debug else (logging.WARNING if args.quiet else logging.INFO)
-    logging.basicConfig(level=level, format="%(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    # a handler on our own logger, removed afterwards, so that main() can be called in-process (tests)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    pkg = logging.getLogger("sparself")
+    old_level, old_propagate = pkg.level, pkg.propagate
+    pkg.addHandler(handler)
+    pkg.setLevel(level)
+    pkg.propagate = False
     try:
         return int(args.func(args) or 0)
     except SparselfError as e:
@@ -59,6 +66,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"sparself {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        pkg.removeHandler(handler)
+        pkg.setLevel(old_level)
+        pkg.propagate = old_propagate
 
 
 # ---- commands ------------------------------------------------------------------------------------
