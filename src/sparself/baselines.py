@@ -199,7 +199,7 @@ def planesweep(scene: Scene, targets: list[Frame], **cfg) -> np.ndarray:
     import torch.nn.functional as F
 
     from .geometry import inverse_depth_planes
-    from .recon.mpi import sweep32
+    from .warp import plane_sweep
 
     c = PlaneSweepConfig(**{k: v for k, v in cfg.items() if k in PlaneSweepConfig.__dataclass_fields__})
     near, far = scene.depth_bounds()
@@ -219,7 +219,7 @@ def planesweep(scene: Scene, targets: list[Frame], **cfg) -> np.ndarray:
         any_set = torch.zeros((1,) + hw, dtype=torch.bool)
         chunk = max(1, int(4e6 // (len(idx) * 3 * hw[0] * hw[1])))  # planes per sweep: bounded memory
         for d0 in range(0, len(depths), chunk):
-            vol, valid = sweep32(src, Ks, w2cs, cam.K, tg.pose.w2c(), depths[d0 : d0 + chunk], hw)
+            vol, valid = plane_sweep(src, Ks, w2cs, cam.K, tg.pose.w2c(), depths[d0 : d0 + chunk], hw)
             wv = wts * valid  # (S, D, 1, H, W)
             wsum = wv.sum(0)
             col = (wv * vol).sum(0) / wsum.clamp_min(1e-8)  # (D, 3, H, W)
