@@ -153,6 +153,14 @@ def test_densify_end_to_end(tmp_path):
     assert len(back) == 12
     assert (out / "scene" / "transforms.json").is_file() and (out / "scene" / "poses_bounds.npy").is_file()
     assert (out / "scene" / "sparse" / "0").is_dir() and (out / "run" / "checkpoint.pt").is_file()
+    from sparself.plan import load_plan
+
+    planned = load_plan(out / "plan.json", back)
+    synth = {f.name: f for f in dense.frames if f.synthetic}
+    assert sorted(f.name for f in planned) == sorted(synth)
+    for f in planned:  # the written plan holds exactly the poses that were synthesized
+        np.testing.assert_allclose(f.pose.w2c(), synth[f.name].pose.w2c(), atol=1e-9)
+    assert (out / "cameras.png").stat().st_size > 1000
     with pytest.raises(OutputError):
         densify(src, out, cfg)  # refuses a non-empty output folder
 

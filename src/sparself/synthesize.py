@@ -165,12 +165,13 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
 
     photos_or_scene: a Scene, or a path read by ``sparself.io.read_scene`` or a folder of photos (SfM).
     out: folder written atomically: the dense scene in ``out/scene/`` (``sparself.io.write_scene`` layout:
-    images/, sparse/0/, poses_bounds.npy, transforms.json) and, if ``keep_run``, the trained run in
-    ``out/run/``. Returns the densified scene.
+    images/, sparse/0/, poses_bounds.npy, transforms.json), the plan in ``out/plan.json``, a camera plot
+    ``out/cameras.png`` and, if ``keep_run``, the trained run in ``out/run/``. Returns the densified scene.
     """
     from . import io as sio
     from .outputs import check_output_dir
-    from .plan import PlanConfig, plan_sequence
+    from .plan import PlanConfig, plan_sequence, save_plan
+    from .plot import plot_cameras
 
     cfg = cfg or DensifyConfig()
     out = Path(out)
@@ -188,6 +189,10 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         images = synthesize(run, scene, targets)
         dense = densify_scene(scene, targets, images)
         sio.write_scene_into(dense, tmp / "scene")
+        # the plan and a camera plot beside the scene, so users see where the new views are
+        save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan or PlanConfig())
+        plot_cameras(scene, planned=targets, path=tmp / "cameras.png",
+                     title=f"{len(scene)} input views (blue) + {len(targets)} synthesized (orange)")
         if not cfg.keep_run:
             import shutil
 
