@@ -1,7 +1,9 @@
 # Set-up and everyday targets. Each target creates .venv on first use and installs once (stamp file).
-#   make demo   run sparself on the bundled sample scene (samples/bird) -> demo_out/
+#   make demo   densify the bundled sample capture (samples/bird: photos -> poses -> plan -> train
+#               -> synthesize) -> demo_out/
+#   make evaluate  held-out evaluation of the sample, quick settings -> eval_out/
 #   make test   run the test suite: .venv/bin/python -m pytest -q tests
-#   make bench  run the benchmarks in benchmarks/ (if any)
+#   make bench  speed and memory table: .venv/bin/python benchmarks/run.py
 #   make clean  remove demo output and caches (keeps .venv; `make distclean` removes it too)
 
 PYTHON   ?= python3
@@ -16,10 +18,13 @@ TORCH    ?= torch==2.13.0
 TORCH_PIP_ARGS ?=
 
 # The demo: change these to change what `make demo` runs.
-DEMO_SCENE ?= samples/bird
-DEMO_OUT   ?= demo_out
+DEMO_SCENE  ?= samples/bird
+DEMO_OUT    ?= demo_out
+DEMO_SIZE   ?= 240
+DEMO_EPOCHS ?= 30
+EVAL_OUT    ?= eval_out
 
-.PHONY: demo test bench clean distclean install
+.PHONY: demo evaluate test bench clean distclean install
 
 install: $(STAMP)
 
@@ -30,21 +35,24 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	mkdir -p $(DEMO_OUT)
-	$(VENV)/bin/sparself info $(DEMO_SCENE)
-	$(VENV)/bin/sparself plan $(DEMO_SCENE) --out $(DEMO_OUT)/plan.json --plot $(DEMO_OUT)/cameras.png --overwrite
-	@echo "demo outputs in $(DEMO_OUT)/"
+	$(VENV)/bin/sparself densify $(DEMO_SCENE)/images --out $(DEMO_OUT) --out-size $(DEMO_SIZE) \
+	  --epochs $(DEMO_EPOCHS) --seed 0 --overwrite
+	$(VENV)/bin/sparself info $(DEMO_OUT)/scene
+	@echo "demo: dense scene in $(DEMO_OUT)/scene (COLMAP sparse/0, poses_bounds.npy, transforms.json),"
+	@echo "      synthesized views $(DEMO_OUT)/scene/images/novel_*.png, plan and camera plot in $(DEMO_OUT)/"
+
+# held-out evaluation of the sample (minutes on a CPU with --quick; see README)
+evaluate: $(STAMP)
+	$(VENV)/bin/sparself evaluate $(DEMO_SCENE) --out $(EVAL_OUT) --quick --overwrite
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests
 
 bench: $(STAMP)
-	@set -e; found=0; for f in benchmarks/*.py; do \
-	  [ -e "$$f" ] || continue; found=1; echo "== $$f"; $(PY) "$$f"; done; \
-	  [ $$found = 1 ] || echo "no benchmarks yet (benchmarks/*.py)"
+	$(PY) benchmarks/run.py
 
 clean:
-	rm -rf $(DEMO_OUT) .pytest_cache build dist
+	rm -rf $(DEMO_OUT) $(EVAL_OUT) .pytest_cache build dist
 	find . -name __pycache__ -type d -not -path "./$(VENV)/*" -prune -exec rm -rf {} +
 
 distclean: clean
