@@ -1,6 +1,6 @@
 """Synthesis quality on held-out REAL frames: CNN–LSTM decoders vs classical baselines.
 
-    python benchmarks/synthesis_quality.py [--captures bird,temple] [--epochs 100] [--threads 1]
+    python benchmarks/synthesis_quality.py [--captures bird,temple] [--epochs 100] [--threads 1] [--set crop=32]
 
 bird: llff_bird, 25 evenly spaced inputs (np.round(np.linspace(0, 183, 25))) at 1/4 resolution
 (136 x 240); ground truth = the real frames nearest the 24 midpoints between consecutive inputs.
@@ -65,8 +65,11 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=100)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a TrainConfig field for the network methods (JSON value), repeatable")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    overrides = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     rows = []
     print(f"{'capture':8} {'method':16} {'PSNR':>6} {'SSIM':>6} {'train s':>8} {'train cpu':>9} {'synth s':>8}")
@@ -80,6 +83,7 @@ def main() -> None:
             else:
                 cfg = TrainConfig(decoder="fc" if m == "fc" else "sweep", epochs=args.epochs, size=size,
                                   context=m != "sweep-nocontext", fc_side=size // 2, device="cpu")
+                cfg = dataclasses.replace(cfg, **{k: v for k, v in overrides.items() if m != "fc"})
                 with tempfile.TemporaryDirectory() as tmp:
                     t0, c0 = time.perf_counter(), time.process_time()
                     run = train(sources, Path(tmp) / "run", cfg, progress=False)
@@ -90,7 +94,7 @@ def main() -> None:
             p, s = score(pred, gt)
             rows.append({"capture": cap, "method": m, "psnr": p, "ssim": s, "train_s": t_train,
                          "train_cpu_s": c_train, "synth_s": t_syn, "n_targets": len(targets),
-                         "hw": list(gt.shape[1:3]), "epochs": args.epochs})
+                         "hw": list(gt.shape[1:3]), "epochs": args.epochs, "overrides": overrides})
             print(f"{cap:8} {m:16} {p:6.2f} {s:6.3f} {t_train:8.1f} {c_train:9.1f} {t_syn:8.1f}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

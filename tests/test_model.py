@@ -186,3 +186,40 @@ def test_decoder_shapes_and_initial_sweep_output_is_a_blend_of_sources():
     net = _net(SweepDecoder(4))
     f = net.encode(net.backbone_input(torch.rand(3, 3, 20, 30)))
     assert f.shape == (3, 512)
+
+
+def test_sweep_volume_last_plane_is_the_plain_blend_input():
+    from sparself.model import sweep_volume
+    from sparself.model.decoders import blend_weights
+
+    K = torch.tensor([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
+    w2c = torch.eye(4).repeat(3, 1, 1)
+    w2c[0, 0, 3], w2c[1, 0, 3], w2c[2, 0, 3] = 0.0, -3.0, -1.0  # centres x = 0, 3 and the target at 1
+    src = torch.rand(2, 3, 24, 32)
+    Kc = K.clone()
+    Kc[0, 2] -= 4  # a crop starting at x = 4, y = 2
+    Kc[1, 2] -= 2
+    x = sweep_volume(src, K[None].repeat(2, 1, 1), w2c[:2], Kc, w2c[2], torch.tensor([2.0, 5.0]), (10, 12))
+    assert x.shape == (8, 3, 10, 12)
+    # same intrinsics: the unwarped plane is the crop of each source itself
+    assert torch.allclose(x[0:3, -1], src[0, :, 2:12, 4:16], atol=1e-5)
+    assert torch.allclose(x[3:6, -1], src[1, :, 2:12, 4:16], atol=1e-5)
+    # plain-blend weights: the target is 1 from source 0 and 2 from source 1 -> 2/3, 1/3
+    assert torch.allclose(blend_weights(w2c[:2].double(), w2c[2].double()), torch.tensor([2 / 3, 1 / 3]).double())
+    assert torch.allclose(x[6, -1], torch.full((10, 12), 2 / 3)) and torch.allclose(x[7, -1], torch.full((10, 12), 1 / 3))
+
+
+def test_sweep_gate_interpolates_between_the_sweep_and_the_plain_blend():
+    x = torch.rand(2, 8, 5, 9, 11)
+    x[:, 6:, :-1] = 1.0
+    x[:, 6, -1], x[:, 7, -1] = 0.25, 0.75
+    plain = 0.25 * x[:, 0:3, -1] + 0.75 * x[:, 3:6, -1]
+    ctx = torch.randn(2, 512)
+    to_blend = SweepDecoder(4, gate_init=-40.0)
+    out, gate = to_blend(x, ctx, return_gate=True)
+    assert torch.all(gate < 1e-6) and torch.allclose(out, plain, atol=1e-5)
+    no_gate = SweepDecoder(4, gate=False)
+    sweep_only = no_gate(x, ctx)
+    half = SweepDecoder(4, gate_init=0.0)
+    half.load_state_dict({**no_gate.state_dict(), **{k: v for k, v in half.state_dict().items() if k.startswith("gate")}})
+    assert torch.allclose(half(x, ctx), 0.5 * sweep_only + 0.5 * plain, atol=1e-5)

@@ -58,6 +58,9 @@ class TrainConfig:
     channels: feature channels of the sweep decoder's 3D CNN.
     windows: box-filter sides (px) of the matching cost the sweep decoder sees, one input channel each.
     extra_layers: additional 3x3x3 conv layers in the sweep decoder.
+    gate: the sweep decoder mixes its depth-resolved colour with the plain blend of the two unwarped
+        sources through a learned per-pixel gate (fallback where the sweep finds no consistent depth).
+    gate_init: the gate's initial logit (0: half sweep, half blend; negative: towards the blend).
     fc_side: long side in px of the fc decoder's output grid (upsampled to the target size).
     context: False zeroes the LSTM output given to the decoder (ablation).
     finetune_backbone: train ResNet-18 end to end (the paper); None = auto: yes on CUDA, no on CPU, where
@@ -76,6 +79,8 @@ class TrainConfig:
     channels: int = 8
     windows: tuple[int, ...] = (5,)
     extra_layers: int = 0
+    gate: bool = True
+    gate_init: float = 0.0
     fc_side: int = 48
     context: bool = True
     finetune_backbone: bool | None = None
@@ -197,7 +202,7 @@ def fc_grid(width: int, height: int, side: int) -> tuple[int, int]:
 
 def build_model(cfg: TrainConfig, meta: dict) -> CNNLSTM:
     dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta["fc_hw"]), windows=cfg.windows,
-                        extra_layers=cfg.extra_layers)
+                        extra_layers=cfg.extra_layers, gate=cfg.gate, gate_init=cfg.gate_init)
     return CNNLSTM(dec, backbone_size=meta["backbone_size"], context=cfg.context)
 
 

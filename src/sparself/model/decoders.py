@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..warp import plane_sweep
+from ..warp import homography_warp, plane_sweep
 
 DECODERS = ("sweep", "fc")
 
@@ -34,24 +34,48 @@ class FCDecoder(nn.Module):
         return self.fc(ctx).view(-1, 3, *self.out_hw)
 
 
+def blend_weights(w2c_src: torch.Tensor, w2c_dst: torch.Tensor) -> torch.Tensor:
+    """Plain-blend weights of two sources for a target: inverse to their camera-centre distances,
+    ``w_1 = d_2 / (d_1 + d_2)``, ``w_2 = d_1 / (d_1 + d_2)`` (the index-weighted blend for a target
+    between them; equal weights if both distances vanish). w2c_src (2, 4, 4); w2c_dst (4, 4) -> (2,)."""
+    def centre(m):
+        return -(m[..., :3, :3].transpose(-1, -2) @ m[..., :3, 3:4])[..., 0]
+
+    d = (centre(w2c_src) - centre(w2c_dst)).norm(dim=-1)
+    tot = d.sum()
+    if float(tot) <= 1e-12:
+        return torch.full_like(d, 0.5)
+    return d.flip(0) / tot
+
+
 def sweep_volume(src: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
                  K_dst: torch.Tensor, w2c_dst: torch.Tensor, depths: torch.Tensor,
                  out_hw: tuple[int, int]) -> torch.Tensor:
-    """Decoder input for one target: its two sources warped onto every depth plane.
+    """Decoder input for one target: its two sources warped onto every depth plane, plus one plane of
+    the sources unwarped (the plain blend's input).
 
     src: (2, 3, H, W); K_src (2, 3, 3); w2c_src (2, 4, 4); K_dst (3, 3) (shifted for a crop);
-    w2c_dst (4, 4); depths (D,). -> (8, D, h, w): colours of both sources (6) and their validity (2).
+    w2c_dst (4, 4); depths (D,). -> (8, D + 1, h, w). Planes 0..D-1: colours of both sources (6) and
+    their validity (2) on each depth plane. Plane D: both sources mapped by their intrinsics only
+    (``K_src K_dst^-1``: the source image resized/cropped to the target camera, as the plain-blend
+    baseline uses it), with validity times the :func:`blend_weights` in channels 6-7.
     """
     vol, valid = plane_sweep(src, K_src, w2c_src, K_dst, w2c_dst, depths, out_hw)  # (2,D,3,h,w), (2,D,1,h,w)
-    vol = vol * valid
-    x = torch.cat([vol[0], vol[1], valid[0], valid[1]], dim=1)  # (D, 8, h, w)
+    K_src_t = torch.as_tensor(K_src, dtype=src.dtype, device=src.device)
+    K_dst_t = torch.as_tensor(K_dst, dtype=src.dtype, device=src.device)
+    ident, ivalid = homography_warp(src, K_src_t @ torch.linalg.inv(K_dst_t)[None], out_hw)  # (2,3,h,w)
+    wts = blend_weights(torch.as_tensor(w2c_src, dtype=torch.float64, device=src.device),
+                        torch.as_tensor(w2c_dst, dtype=torch.float64, device=src.device)).to(src.dtype)
+    vol = torch.cat([vol * valid, (ident * ivalid)[:, None]], dim=1)  # (2, D+1, 3, h, w)
+    valid = torch.cat([valid, (ivalid * wts[:, None, None, None])[:, None]], dim=1)
+    x = torch.cat([vol[0], vol[1], valid[0], valid[1]], dim=1)  # (D+1, 8, h, w)
     return x.permute(1, 0, 2, 3).contiguous()
 
 
 class SweepDecoder(nn.Module):
     """Small 3D CNN over a plane-sweep volume, FiLM-conditioned on the LSTM output.
 
-    Input x: (B, 8, D, h, w) from :func:`sweep_volume`; ctx: (B, 512). Output (B, 3, h, w):
+    Input x: (B, 8, D + 1, h, w) from :func:`sweep_volume`; ctx: (B, 512). Output (B, 3, h, w):
     sum_d p_d (a_d c1_d + (1 - a_d) c2_d) over valid samples (p = softmax over the D planes, a = blend
     weight per plane), plus a small 2D residual. Per voxel the CNN sees the photo-consistency of the two
     sources (their colour difference, raw and box-filtered over each of ``windows`` px, as in plane-sweep
@@ -59,10 +83,17 @@ class SweepDecoder(nn.Module):
     cores). The depth logits add a plane-sweep prior, -cost_scale x the box-filtered cost, so the untrained
     decoder is already a soft winner-take-all sweep and training learns corrections (which matters when
     a capture has few frames to learn from).
+
+    gate: mix the depth-resolved colour with the plain blend of the two unwarped sources (the last plane
+    of x) through a learned per-pixel gate g (output = g sweep + (1 - g) blend, then the residual). Where
+    the sweep finds no consistent depth (wide baselines, textureless or dark surroundings) the decoder can
+    fall back to what the plain blend gives. The gate's logit starts at ``gate_init`` (negative: towards
+    the blend) and is scaled by ``gate_gain`` so that it can move a few units within a short training.
     """
 
     def __init__(self, channels: int = 8, hidden: int = 512, residual: bool = True, windows=(5,),
-                 extra_layers: int = 0, cost_scale: float = 30.0) -> None:
+                 extra_layers: int = 0, cost_scale: float = 30.0, gate: bool = True, gate_init: float = 0.0,
+                 gate_gain: float = 10.0) -> None:
         super().__init__()
         c = channels
         self.windows = tuple(int(k) for k in windows)
@@ -80,9 +111,19 @@ class SweepDecoder(nn.Module):
         if self.residual is not None:
             nn.init.zeros_(self.residual[-1].weight)
             nn.init.zeros_(self.residual[-1].bias)
+        self.gate_gain = float(gate_gain)
+        self.gate = None
+        if gate:
+            # inputs: sweep colour, blend colour, expected matching cost, sweep spread, cover, blend disagreement
+            self.gate = nn.Sequential(nn.Conv2d(3 + 3 + 4, 16, 3, padding=1), nn.ReLU(inplace=True),
+                                      nn.Conv2d(16, 1, 3, padding=1))
+            nn.init.zeros_(self.gate[-1].weight)
+            nn.init.constant_(self.gate[-1].bias, float(gate_init) / self.gate_gain)
 
-    def forward(self, x: torch.Tensor, ctx: torch.Tensor) -> torch.Tensor:
-        """x: (B, 8, D, h, w); ctx: (B, 512) -> (B, 3, h, w)."""
+    def forward(self, x: torch.Tensor, ctx: torch.Tensor, return_gate: bool = False):
+        """x: (B, 8, D + 1, h, w); ctx: (B, 512) -> (B, 3, h, w) (and the gate (B, 1, h, w) if asked;
+        ones without a gate)."""
+        x, plain = x[:, :, :-1], x[:, :, -1]
         c1, c2, v1, v2 = x[:, 0:3], x[:, 3:6], x[:, 6:7], x[:, 7:8]
         b, _, d, h, w = x.shape
         both = v1 * v2
@@ -97,23 +138,32 @@ class SweepDecoder(nn.Module):
         for conv in self.extra:
             hid = F.relu(conv(hid))
         logits = self.conv_out(hid)  # (B, 2, D, h, w)
-        prior = -self.cost_scale * torch.stack(boxes).mean(0)[:, 0]  # (B, D, h, w)
-        p = torch.softmax(logits[:, 0] + prior, dim=1)[:, None]  # over depth
+        cost = torch.stack(boxes).mean(0)[:, 0]  # (B, D, h, w)
+        p = torch.softmax(logits[:, 0] - self.cost_scale * cost, dim=1)[:, None]  # over depth
         a = torch.sigmoid(logits[:, 1])[:, None]
         w1, w2 = a * v1, (1 - a) * v2
         colour = (w1 * c1 + w2 * c2) / (w1 + w2).clamp(min=1e-6)
         out = (p * colour).sum(2)  # (B, 3, h, w)
+        cover = (p * ((v1 + v2) > 0).to(x.dtype)).sum(2)  # how much of p saw a source
+        spread = (p * (colour - out[:, :, None]).abs()).sum(2)  # disagreement along depth
+        gate = torch.ones_like(cover)
+        if self.gate is not None:
+            p1, p2, pw1, pw2 = plain[:, 0:3], plain[:, 3:6], plain[:, 6:7], plain[:, 7:8]
+            blend = (pw1 * p1 + pw2 * p2) / (pw1 + pw2).clamp(min=1e-6)
+            plain_diff = (p1 - p2).abs().mean(1, keepdim=True)
+            exp_cost = (p[:, 0] * cost).sum(1, keepdim=True)
+            gin = torch.cat([out, blend, exp_cost, spread.mean(1, keepdim=True), cover, plain_diff], 1)
+            gate = torch.sigmoid(self.gate_gain * self.gate(gin))
+            out = gate * out + (1 - gate) * blend
         if self.residual is not None:
-            cover = (p * ((v1 + v2) > 0).to(x.dtype)).sum(2)  # how much of p saw a source
-            spread = (p * (colour - out[:, :, None]).abs()).sum(2)  # disagreement along depth
             out = out + self.residual(torch.cat([out, spread, cover], 1))
-        return out
+        return (out, gate) if return_gate else out
 
 
 def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32), windows=(5,),
-                  extra_layers: int = 0) -> nn.Module:
+                  extra_layers: int = 0, gate: bool = True, gate_init: float = 0.0) -> nn.Module:
     if name == "sweep":
-        return SweepDecoder(channels, windows=windows, extra_layers=extra_layers)
+        return SweepDecoder(channels, windows=windows, extra_layers=extra_layers, gate=gate, gate_init=gate_init)
     if name == "fc":
         return FCDecoder(fc_hw)
     raise ValueError(f"unknown decoder {name!r}; choose one of {', '.join(DECODERS)}")
