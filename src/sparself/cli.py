@@ -98,6 +98,23 @@ def _run_info(args) -> int:
 _COMMANDS.append(_add_info)
 
 
+def _plan_options(p: argparse.ArgumentParser) -> None:
+    """The novel-pose plan's options, shared by `plan` and `densify`."""
+    p.add_argument("--n-mid", type=int, default=8, help="midpoints between consecutive views (default 8)")
+    p.add_argument("--n-extra", type=int, default=2, help="extrapolated poses past the ends (default 2)")
+    p.add_argument("--order", choices=["auto", "capture", "nearest"], default="auto",
+                   help="which views are consecutive: capture order, a nearest-neighbour path, or auto "
+                        "(capture order unless it walks 1.5x further than the nearest-neighbour path)")
+    p.add_argument("--gaps", choices=["even", "largest"], default="even",
+                   help="which gaps get midpoints: spread evenly (default) or the widest ones")
+
+
+def _plan_config(args):
+    from .plan import PlanConfig
+
+    return PlanConfig(n_mid=args.n_mid, n_extra=args.n_extra, order=args.order, gaps=args.gaps)
+
+
 def _add_plan(sub) -> None:
     p = sub.add_parser(
         "plan", help="plan novel camera poses (midpoints + extrapolations) for a scene",
@@ -106,13 +123,7 @@ def _add_plan(sub) -> None:
                     "(8 + 2 = 10 poses by default). Writes a JSON plan; --plot draws the cameras.")
     p.add_argument("scene", type=Path, help="scene folder or pose file")
     p.add_argument("--out", type=Path, required=True, help="plan file to write (JSON)")
-    p.add_argument("--n-mid", type=int, default=8, help="midpoints between consecutive views (default 8)")
-    p.add_argument("--n-extra", type=int, default=2, help="extrapolated poses past the ends (default 2)")
-    p.add_argument("--order", choices=["auto", "capture", "nearest"], default="auto",
-                   help="which views are consecutive: capture order, a nearest-neighbour path, or auto "
-                        "(capture order unless it walks 1.5x further than the nearest-neighbour path)")
-    p.add_argument("--gaps", choices=["even", "largest"], default="even",
-                   help="which gaps get midpoints: spread evenly (default) or the widest ones")
+    _plan_options(p)
     p.add_argument("--plot", type=Path, default=None, help="also draw the cameras to this PNG")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     _common(p)
@@ -120,11 +131,9 @@ def _add_plan(sub) -> None:
 
 
 def _run_plan(args) -> int:
-    from .plan import PlanConfig, make_plan
+    from .plan import make_plan
 
-    frames = make_plan(args.scene, args.out, PlanConfig(n_mid=args.n_mid, n_extra=args.n_extra,
-                                                        order=args.order, gaps=args.gaps),
-                       plot=args.plot, overwrite=args.overwrite)
+    frames = make_plan(args.scene, args.out, _plan_config(args), plot=args.plot, overwrite=args.overwrite)
     print(f"planned {len(frames)} novel poses -> {args.out}" + (f" (plot: {args.plot})" if args.plot else ""))
     return 0
 
@@ -309,8 +318,7 @@ def _add_densify(sub) -> None:
                     "Writes OUT/scene (images/, sparse/0/, poses_bounds.npy, transforms.json) and OUT/run.")
     p.add_argument("photos", type=Path, help="folder of photos, or a posed scene")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--n-mid", type=int, default=8, help="midpoints between consecutive views (default 8)")
-    p.add_argument("--n-extra", type=int, default=2, help="extrapolated poses past the ends (default 2)")
+    _plan_options(p)
     p.add_argument("--out-size", type=int, default=None, help="long side in px of the written scene and of training (default: as read; "
                         "--size is not used by densify)")
     _train_options(p)
@@ -320,11 +328,10 @@ def _add_densify(sub) -> None:
 
 
 def _run_densify(args) -> int:
-    from .plan import PlanConfig
     from .synthesize import DensifyConfig, densify
 
-    densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=PlanConfig(n_mid=args.n_mid,
-            n_extra=args.n_extra), out_size=args.out_size, overwrite=args.overwrite))
+    densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=_plan_config(args),
+                                                 out_size=args.out_size, overwrite=args.overwrite))
     return 0
 
 
