@@ -223,3 +223,15 @@ def test_sweep_gate_interpolates_between_the_sweep_and_the_plain_blend():
     half = SweepDecoder(4, gate_init=0.0)
     half.load_state_dict({**no_gate.state_dict(), **{k: v for k, v in half.state_dict().items() if k.startswith("gate")}})
     assert torch.allclose(half(x, ctx), 0.5 * sweep_only + 0.5 * plain, atol=1e-5)
+
+
+def test_synthesis_loss_is_mse_plus_weighted_ssim_dissimilarity():
+    from sparself.model.decoders import synthesis_loss
+
+    gt = torch.rand(2, 3, 16, 16)
+    pred = gt + 0.1 * torch.randn_like(gt)
+    mse = torch.mean((pred - gt) ** 2)
+    assert torch.allclose(synthesis_loss(pred, gt), mse)
+    assert torch.allclose(synthesis_loss(gt, gt, 0.5), torch.tensor(0.0), atol=1e-5)  # SSIM(x, x) = 1
+    with_ssim = synthesis_loss(pred, gt, 0.5)
+    assert with_ssim > mse + 0.01  # noise lowers SSIM, so the term adds to the MSE

@@ -167,3 +167,15 @@ def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32
     if name == "fc":
         return FCDecoder(fc_hw)
     raise ValueError(f"unknown decoder {name!r}; choose one of {', '.join(DECODERS)}")
+
+
+def synthesis_loss(pred: torch.Tensor, gt: torch.Tensor, ssim_weight: float = 0.0, window: int = 7) -> torch.Tensor:
+    """Training loss: MSE + ``ssim_weight`` x (1 - SSIM) (Gaussian window of ``window`` px, kornia).
+    pred, gt: (B, 3, h, w) in [0, 1], computed in float32. -> scalar."""
+    pred, gt = pred.float(), gt.float()
+    loss = F.mse_loss(pred, gt)
+    if ssim_weight > 0:
+        from kornia.metrics import ssim
+
+        loss = loss + ssim_weight * (1 - ssim(pred, gt, window).mean())
+    return loss
