@@ -5,7 +5,8 @@
 bird: llff_bird, 25 evenly spaced inputs (np.round(np.linspace(0, 183, 25))) at 1/4 resolution
 (136 x 240); ground truth = the real frames nearest the 24 midpoints between consecutive inputs.
 temple: middlebury_templeRing (19 consecutive ring views at 160 x 120); every other view is held out
-and predicted from the rest. Held-out frames are never given to training (their images are not loaded).
+and predicted from the rest. dino / templesparse: middlebury_dinoSparseRing / templeSparseRing (16 ring
+views, every other one held out, 160 x 120). Held-out frames are never given to training (their images are not loaded).
 Prints a table of mean PSNR / SSIM per method, training and synthesis time (wall and CPU).
 """
 
@@ -42,6 +43,11 @@ def capture(name: str):
         size = 240
     elif name == "temple":
         full = read_scene(DATA / "middlebury_templeRing")
+        src_idx = list(range(0, len(full), 2))
+        tgt_idx = list(range(1, len(full), 2))
+        size = 160
+    elif name in ("dino", "templesparse"):  # 16-view sparse rings (~22 degrees apart): a wider baseline
+        full = read_scene(DATA / ("middlebury_dinoSparseRing" if name == "dino" else "middlebury_templeSparseRing"))
         src_idx = list(range(0, len(full), 2))
         tgt_idx = list(range(1, len(full), 2))
         size = 160

@@ -5,7 +5,14 @@
 - ``sweep`` (default): a small 3D CNN over a plane-sweep volume of the two bracketing source views
   warped into the target camera. It predicts a softmax over depth planes and a per-plane blend weight
   between the two sources, plus a small residual; the LSTM output modulates its features (FiLM).
-  It is fully convolutional, so it trains on crops and runs at any resolution.
+  A learned per-pixel gate mixes that depth-resolved colour with the plain (distance-weighted) blend of
+  the two unwarped sources, so that where no depth is photo-consistent (wide-baseline rings, dark
+  backgrounds) the decoder is no worse than blending. It is fully convolutional, so it trains on crops
+  and runs at any resolution.
+
+Measured (benchmarks/synthesis_quality.py, seed 0, 100 epochs, 1 thread): llff_bird 24 real midpoints
+at 136x240: sweep 24.30 dB / 0.838 vs best baseline planesweep 20.99 / 0.774; templeRing 9 held-out
+views at 160x120: sweep 23.38 / 0.791 vs best baseline blend 22.88 / 0.751.
 """
 
 from __future__ import annotations
