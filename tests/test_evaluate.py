@@ -198,3 +198,20 @@ def test_cli_evaluate_end_to_end_with_the_real_network(tmp_path, capsys):
     assert "sparself" in s["view_synthesis"] and s["densification"]["mpi"]["status"] == "ok"
     assert data["settings"]["epochs"] == 1 and data["settings"]["size"] == 32
     assert "| Scene | mpi N | mpi N+synth | mpi change |" in (out / "report.md").read_text()
+
+
+def test_missing_imagenet_weights_are_reported_once_per_evaluation(tmp_path, monkeypatch, caplog):
+    """Two seeds train two networks, but the "no ImageNet weights" warning is said once."""
+    import logging
+
+    import torch
+
+    torch.set_num_threads(1)
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    scene = _capture(tmp_path / "cap_images")
+    make = ev.network_factory(EvalConfig(size=32, epochs=1, seeds=2, progress=False))
+    with caplog.at_level(logging.WARNING, logger="sparself"):
+        for seed in (0, 1):
+            make(scene, seed)
+    said = [r for r in caplog.records if "no ImageNet weights" in r.getMessage()]
+    assert len(said) == 1

@@ -235,3 +235,13 @@ def test_synthesis_loss_is_mse_plus_weighted_ssim_dissimilarity():
     assert torch.allclose(synthesis_loss(gt, gt, 0.5), torch.tensor(0.0), atol=1e-5)  # SSIM(x, x) = 1
     with_ssim = synthesis_loss(pred, gt, 0.5)
     assert with_ssim > mse + 0.01  # noise lowers SSIM, so the term adds to the MSE
+
+
+def test_weights_none_keeps_random_init_silently(tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    m = ResNet18()
+    before = {k: v.clone() for k, v in m.state_dict().items()}
+    with caplog.at_level(logging.WARNING):
+        assert load_resnet18_weights(m, "none") == "random"
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert all(torch.equal(v, before[k]) for k, v in m.state_dict().items())

@@ -147,3 +147,31 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "sparself densify: interrupted" in err and "Traceback" not in err, err
     assert listing(res) == []
+
+
+def test_leftovers_of_a_killed_run_are_removed_by_the_next_one(tmp_path):
+    """SIGKILL runs no cleanup, so its hidden temporary folder stays; the next run writing the same output
+    removes it (its process is dead) but keeps the temporary folder of a run that is still alive."""
+    from sparself.outputs import atomic_dir
+
+    out = tmp_path / "out"
+    code = ("import sys, time\nfrom pathlib import Path\nfrom sparself.outputs import atomic_dir\n"
+            "with atomic_dir(Path(sys.argv[1])) as t:\n"
+            "    (t / 'part.txt').write_text('half')\n    print('ready', flush=True)\n    time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    live = subprocess.Popen([sys.executable, "-c", code, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)
+    assert live.stdout.readline().strip() == "ready"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    dead_tmp = [p for p in tmp_path.glob(".out.tmp-*") if p.name.startswith(f".out.tmp-{proc.pid}-")]
+    assert len(dead_tmp) == 1 and (dead_tmp[0] / "part.txt").exists()
+    try:
+        with atomic_dir(out) as t:
+            (t / "result.txt").write_text("done")
+        assert not dead_tmp[0].exists()
+        assert [p.name.split("-")[1] for p in tmp_path.glob(".out.tmp-*")] == [str(live.pid)]
+        assert (out / "result.txt").read_text() == "done"
+    finally:
+        live.kill()
+        live.wait()

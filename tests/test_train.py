@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -87,9 +88,13 @@ def test_a_tiny_sequence_is_fitted(tmp_path):
     assert loss[-1] < 0.2 * loss[0]
 
 
-def test_resume_ends_with_the_same_weights_as_an_uninterrupted_run(tmp_path):
+def test_resume_ends_with_the_same_weights_as_an_uninterrupted_run(tmp_path, caplog):
     scene = plane_scene()
-    full = train(scene, tmp_path / "full", tiny_cfg(epochs=4), progress=False)
+    with caplog.at_level(logging.INFO, logger="sparself"):
+        full = train(scene, tmp_path / "full", tiny_cfg(epochs=4), progress=False)
+    # without a progress bar, each checkpoint is logged
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("train: epoch")]
+    assert said and said[-1].startswith("train: epoch 4/4, loss ")
     train(scene, tmp_path / "part", tiny_cfg(epochs=2), progress=False)
     resumed = train(scene, tmp_path / "part", tiny_cfg(epochs=4), resume=True, progress=False)
     a, b = _state(full), _state(resumed)

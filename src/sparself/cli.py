@@ -244,7 +244,7 @@ def _train_options(p: argparse.ArgumentParser) -> None:
                    help=f"leave-one-out targets per step (default {T.batch_size})")
     p.add_argument("--weights", default=None,
                    help="ResNet-18 ImageNet weights (torchvision's resnet18-f37072fd.pth); default: the "
-                        "torch hub cache copy if present, else random initialisation")
+                        "torch hub cache copy if present, else random initialisation with a warning; 'none': random initialisation, no warning")
     p.add_argument("--no-context", action="store_true", help="ablation: zero the LSTM output")
 
 

@@ -254,10 +254,14 @@ def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
     except ImportError as e:
         raise SparselfError(f"the sparself network is not available: {e}") from None
 
+    from .model import default_weights
+
+    weights = default_weights()  # resolved (and warned about) once, not once per scene and seed
+
     def make(scene: Scene, seed: int) -> SynthFn:
         import tempfile
 
-        kw = {"seed": seed, "size": cfg.size}
+        kw = {"seed": seed, "size": cfg.size, "weights": weights}
         if cfg.epochs is not None:
             kw["epochs"] = cfg.epochs
         with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:

@@ -4,6 +4,7 @@ so a failed or interrupted command leaves no partial output behind."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import shutil
 import tempfile
@@ -11,6 +12,8 @@ from pathlib import Path
 from typing import Iterator
 
 from .errors import OutputError
+
+log = logging.getLogger(__name__)
 
 
 def check_output_dir(out: Path, overwrite: bool = False) -> None:
@@ -43,12 +46,41 @@ def _can_create_in(folder: Path) -> bool:
         return False
 
 
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, owned by someone else
+        return True
+    return True
+
+
+def remove_stale_temps(out: Path) -> list[Path]:
+    """Remove temporary siblings of ``out`` left by a process that no longer runs (killed with
+    SIGKILL, or a power cut: no ``except`` clause ran to clean up). Returns what was removed."""
+    out = Path(out)
+    removed = []
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        return removed
+    for p in parent.glob(f".{out.name}.tmp-*"):
+        pid = p.name[len(f".{out.name}.tmp-"):].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+            removed.append(p)
+            log.info("removed %s, left by an interrupted run (process %s)", p, pid)
+    return removed
+
+
 def _make_temp(out: Path, make) -> Path:
     """Create the parent folders and a temporary sibling of ``out`` with ``make(prefix, dir)``;
-    an OSError becomes an OutputError naming ``out``."""
+    an OSError becomes an OutputError naming ``out``. The prefix holds our process id, so that a
+    later run can tell a dead run's leftovers (removed) from a live run's folder (kept)."""
     try:
         out.resolve().parent.mkdir(parents=True, exist_ok=True)
-        return Path(make(f".{out.name}.tmp-", out.resolve().parent))
+        remove_stale_temps(out)
+        return Path(make(f".{out.name}.tmp-{os.getpid()}-", out.resolve().parent))
     except OSError as e:
         raise OutputError(f"{out}: cannot write there ({e.strerror or e})") from None
 

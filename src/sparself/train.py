@@ -525,6 +525,9 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
             _append_log(out / LOG, epoch + 1, mean, time.perf_counter() - t0, time.process_time() - c0)
             if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
                 _save_checkpoint(out / CHECKPOINT, model, opt, scaler, gen, epoch + 1, cfg, meta)
+                if bar.disable:  # no bar (a log file, CI): say how far it is at each checkpoint
+                    log.info("train: epoch %d/%d, loss %.5f, %.1f s/epoch", epoch + 1, cfg.epochs, mean,
+                             time.perf_counter() - t0)
     model.eval()
     return Run(model, cfg, meta, out)
 

@@ -1,11 +1,11 @@
 """The CNN–LSTM view synthesizer: ResNet-18 backbone, sequence model and decoders."""
 
-from .backbone import RESNET18_URL, ResNet18, hub_weights_path, load_resnet18_weights
+from .backbone import NO_WEIGHTS, RESNET18_URL, ResNet18, default_weights, hub_weights_path, load_resnet18_weights
 from .cnn_lstm import CNNLSTM, PoseNorm, positional_encoding, sequence_layout
 from .decoders import DECODERS, FCDecoder, SweepDecoder, build_decoder, sweep_volume
 
 __all__ = [
-    "RESNET18_URL", "ResNet18", "hub_weights_path", "load_resnet18_weights", "CNNLSTM", "PoseNorm",
+    "NO_WEIGHTS", "RESNET18_URL", "ResNet18", "default_weights", "hub_weights_path", "load_resnet18_weights", "CNNLSTM", "PoseNorm",
     "positional_encoding", "sequence_layout", "DECODERS", "FCDecoder", "SweepDecoder", "build_decoder",
     "sweep_volume",
 ]

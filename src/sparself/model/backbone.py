@@ -94,28 +94,41 @@ IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
+NO_WEIGHTS = "none"  # --weights none: random initialisation, no warning
+
+
 def hub_weights_path() -> Path:
     """Where torch hub caches torchvision's ResNet-18 file."""
     return Path(torch.hub.get_dir()) / "checkpoints" / RESNET18_FILE
 
 
+def default_weights() -> str:
+    """The weights used when none are given: the torch hub cache file if present, else ``"none"``
+    (random initialisation) after one warning that says where to put the file."""
+    cached = hub_weights_path()
+    if cached.is_file():
+        return str(cached)
+    log.warning(
+        "no ImageNet weights for ResNet-18 (no --weights and no %s); using random initialisation. "
+        "Download %s there to use them.", cached, RESNET18_URL,
+    )
+    return NO_WEIGHTS
+
+
 def load_resnet18_weights(model: ResNet18, path: Path | str | None = None) -> str:
     """Load ImageNet weights into ``model`` strictly; returns where they came from ("random" if none).
 
-    path: a torchvision-layout checkpoint (a state dict, optionally with ``fc.*`` which is dropped).
-    Without path: the torch hub cache file if present, else one warning and random initialisation
-    (download ``RESNET18_URL`` into ``hub_weights_path()`` on a machine with a network to use it).
+    path: a torchvision-layout checkpoint (a state dict, optionally with ``fc.*`` which is dropped);
+    ``"none"``: keep the random initialisation without a warning (the caller has already said so).
+    Without path: :func:`default_weights` (the torch hub cache file, else one warning and random
+    initialisation; download ``RESNET18_URL`` into ``hub_weights_path()`` on a machine with a network).
     Raises InputError if the file is missing or unreadable, ConfigError if its keys or shapes differ.
     """
     if path is None:
-        cached = hub_weights_path()
-        if not cached.is_file():
-            log.warning(
-                "no ImageNet weights for ResNet-18 (no --weights and no %s); using random initialisation. "
-                "Download %s there to use them.", cached, RESNET18_URL,
-            )
-            return "random"
-        path = cached
+        path = default_weights()
+    if str(path) == NO_WEIGHTS:
+        log.info("ResNet-18: random initialisation")
+        return "random"
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: weights file not found")
