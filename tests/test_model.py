@@ -245,3 +245,24 @@ def test_weights_none_keeps_random_init_silently(tmp_path, monkeypatch, caplog):
         assert load_resnet18_weights(m, "none") == "random"
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
     assert all(torch.equal(v, before[k]) for k, v in m.state_dict().items())
+
+
+def test_fused_source_states_equal_the_step_by_step_lstm_values_and_gradients():
+    """The fast path (fused LSTM + recomputed cell states) against the plain per-step cells."""
+    net = _net().train()
+    x = torch.randn(30, 1152, dtype=torch.float64, requires_grad=True)
+    net = net.double()
+    outs = []
+    for fn in (net.source_states, net.source_states_reference):
+        net.zero_grad()
+        x.grad = None
+        H, C = fn(x)
+        w = torch.linspace(-1, 1, H.numel(), dtype=torch.float64).view_as(H)
+        ((H * w).sum() + (C * w.flip(0)).sum()).backward()
+        outs.append((H.detach(), C.detach(), x.grad.clone(), net.lstm.weight_hh_l0.grad.clone(),
+                     net.lstm.weight_ih_l1.grad.clone(), net.lstm.bias_hh_l1.grad.clone()))
+    assert outs[0][0].shape == (31, 2, 512)
+    for a, b in zip(*outs):
+        assert torch.allclose(a, b, atol=1e-9, rtol=1e-7)
+    H, C = net.source_states(x[:0])
+    assert H.shape == (1, 2, 512) and not H.any() and not C.any()

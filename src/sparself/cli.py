@@ -244,7 +244,11 @@ def _train_options(p: argparse.ArgumentParser) -> None:
                    help=f"leave-one-out targets per step (default {T.batch_size})")
     p.add_argument("--weights", default=None,
                    help="ResNet-18 ImageNet weights (torchvision's resnet18-f37072fd.pth); default: the "
-                        "torch hub cache copy if present, else random initialisation with a warning; 'none': random initialisation, no warning")
+                        "torch hub cache copy if present, else random initialisation with a warning; "
+                        "'none': random initialisation, no warning")
+    p.add_argument("--amp", choices=["auto", "off", "fp16", "bf16"], default=T.amp,
+                   help="mixed precision (default auto: fp16 with gradient scaling on CUDA, float32 on CPU)")
+    p.add_argument("--compile", action="store_true", help="torch.compile the decoder (pays on GPU for long runs)")
     p.add_argument("--no-context", action="store_true", help="ablation: zero the LSTM output")
 
 
@@ -258,7 +262,8 @@ def _train_config(args):
         raise ConfigError(f"--holdout must be comma-separated integers, got {args.holdout!r}") from None
     return TrainConfig(decoder=args.decoder, epochs=args.epochs, size=args.size, crop=args.crop,
                        backbone_size=args.backbone_size, batch_size=args.batch_size, seed=args.seed,
-                       device=args.device, holdout=hold, weights=args.weights, context=not args.no_context)
+                       device=args.device, holdout=hold, weights=args.weights, context=not args.no_context,
+                       amp=args.amp, compile=args.compile)
 
 
 def _add_train(sub) -> None:

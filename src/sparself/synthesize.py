@@ -20,9 +20,12 @@ from .errors import InputError
 from .model import sweep_volume
 from .outputs import atomic_dir
 from .scene import Frame, Scene
-from .train import Run, TrainConfig, bracket, index_positions, load_run, scene_tensors, train
+from .train import (Run, TrainConfig, amp_dtype, autocast, bracket, index_positions, load_run, scene_tensors,
+                    train)
 
 log = logging.getLogger(__name__)
+
+TILE = 256  # sweep-decoder tile side (px): bounds the sweep volume's memory per call
 
 
 def _as_run(run_or_model) -> Run:
@@ -30,7 +33,7 @@ def _as_run(run_or_model) -> Run:
 
 
 def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_dst: torch.Tensor,
-                  hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor, tile: int = 256,
+                  hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor, tile: int = TILE,
                   margin: int = 8) -> torch.Tensor:
     """Sweep-decode one full target image in overlapping tiles (bounded memory). -> (3, H, W)."""
     h, w = hw
@@ -48,6 +51,23 @@ def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_d
             th, tw = min(tile, h - y0), min(tile, w - x0)
             out[:, y0:y0 + th, x0:x0 + tw] = pred[:, y0 - ya:y0 - ya + th, x0 - xa:x0 - xa + tw]
     return out
+
+
+def _decode_batched(run: Run, st: dict, pairs: list[tuple[int, int]], K_dst: torch.Tensor,
+                    w2c_dst: torch.Tensor, hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor,
+                    max_voxels: int = 2 ** 25) -> torch.Tensor:
+    """Sweep-decode whole target images several at a time (one decoder call per chunk of targets, the
+    chunk bounded by ``max_voxels`` of sweep volume), for images small enough to need no tiling.
+    pairs: each target's two source indices; K_dst: (T, 3, 3); w2c_dst: (T, 4, 4); ctx: (T, 512).
+    -> (T, 3, H, W). Equal to :func:`_decode_tiled` per target (tested)."""
+    h, w = hw
+    per = max(1, max_voxels // (len(depths) * h * w))
+    out = []
+    for a in range(0, len(pairs), per):
+        xs = [sweep_volume(st["images"][[i, j]], st["K"][[i, j]], st["w2c"][[i, j]], K_dst[b], w2c_dst[b],
+                           depths, hw) for b, (i, j) in enumerate(pairs[a:a + per], start=a)]
+        out.append(run.model.decoder(torch.stack(xs), ctx[a:a + per]))
+    return torch.cat(out)
 
 
 def one_size(scene: Scene) -> Scene:
@@ -96,22 +116,28 @@ def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
     norm = run.norm
     vec = torch.from_numpy(norm.vectors(st["poses"])).to(dev)
     q_vec = torch.from_numpy(norm.vectors([t.pose for t in targets])).to(dev)
-    feats = model.encode(model.backbone_input(st["images"]))
+    bb = model.backbone_input(st["images"])
+    if dev.type == "cuda":
+        bb = bb.contiguous(memory_format=torch.channels_last)
     n_before = torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev)
-    ctx = model.contexts(feats, vec, torch.tensor(src_pos, dtype=torch.float32, device=dev), q_vec,
-                         torch.tensor(q_pos, dtype=torch.float32, device=dev), n_before)
-    if run.cfg.decoder == "fc":
-        out = F.interpolate(model.decoder(ctx), size=hw, mode="bilinear", align_corners=False)
-    else:
-        depths = torch.tensor(run.depths, dtype=torch.float32, device=dev)
-        outs = []
-        for b, t in enumerate(targets):
-            i, j = bracket(src_pos, float(q_pos[b]))
-            K_dst = torch.tensor(scene.cameras[t.camera_id].K, dtype=torch.float32, device=dev)
-            w2c_dst = torch.tensor(t.pose.w2c(), dtype=torch.float32, device=dev)
-            outs.append(_decode_tiled(run, st, i, j, K_dst, w2c_dst, hw, ctx[b], depths))
-        out = torch.stack(outs)
-    return out.clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
+    with autocast(dev, amp_dtype(run.cfg.amp, dev)):
+        feats = model.encode(bb)
+        ctx = model.contexts(feats, vec, torch.tensor(src_pos, dtype=torch.float32, device=dev), q_vec,
+                             torch.tensor(q_pos, dtype=torch.float32, device=dev), n_before)
+        if run.cfg.decoder == "fc":
+            out = F.interpolate(model.decoder(ctx), size=hw, mode="bilinear", align_corners=False)
+        else:
+            depths = torch.tensor(run.depths, dtype=torch.float32, device=dev)
+            pairs = [bracket(src_pos, float(q)) for q in q_pos]
+            K_dst = torch.tensor(np.stack([scene.cameras[t.camera_id].K for t in targets]), dtype=torch.float32,
+                                 device=dev)
+            w2c_dst = torch.tensor(np.stack([t.pose.w2c() for t in targets]), dtype=torch.float32, device=dev)
+            if max(hw) <= TILE:  # small images: all targets through the decoder together
+                out = _decode_batched(run, st, pairs, K_dst, w2c_dst, hw, ctx, depths)
+            else:
+                out = torch.stack([_decode_tiled(run, st, i, j, K_dst[b], w2c_dst[b], hw, ctx[b], depths)
+                                   for b, (i, j) in enumerate(pairs)])
+    return out.float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
 
 
 def synthesizer(run_or_model):

@@ -68,6 +68,10 @@ class TrainConfig:
     finetune_backbone: train ResNet-18 end to end (the paper); None = auto: yes on CUDA, no on CPU, where
         the backbone's features are computed once and the rest of the network trains (CPU time budget).
     holdout: positions (0-based, in the scene's frame order) of frames never used for training.
+    amp: mixed precision: "auto" (fp16 autocast with gradient scaling on CUDA, float32 on CPU), "fp16",
+        "bf16" (autocast, no scaling needed) or "off".
+    compile: ``torch.compile`` the decoder (and a fine-tuned backbone) in place; the checkpoint keys do
+        not change. Pays on GPU for long runs; its start-up cost exceeds the gain for short CPU runs.
     """
 
     decoder: str = "sweep"
@@ -92,6 +96,8 @@ class TrainConfig:
     holdout: tuple[int, ...] = ()
     checkpoint_every: int = 5
     weights: str | None = None
+    amp: str = "auto"
+    compile: bool = False
 
     def __post_init__(self) -> None:
         self.holdout = tuple(int(i) for i in self.holdout)
@@ -105,6 +111,8 @@ class TrainConfig:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ConfigError(f"device must be auto, cpu or cuda, got {self.device!r}")
+        if self.amp not in AMP_MODES:
+            raise ConfigError(f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}")
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
@@ -119,7 +127,21 @@ class TrainConfig:
 
 
 # options that may differ between a run and its resumption
-_RESUME_FREE = ("epochs", "device", "checkpoint_every", "weights")
+_RESUME_FREE = ("epochs", "device", "checkpoint_every", "weights", "amp", "compile")
+
+AMP_MODES = ("auto", "off", "fp16", "bf16")
+
+
+def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
+    """The autocast dtype of an ``amp`` mode on ``device`` (None: full float32)."""
+    if amp == "auto":
+        return torch.float16 if device.type == "cuda" else None
+    return {"off": None, "fp16": torch.float16, "bf16": torch.bfloat16}[amp]
+
+
+def autocast(device: torch.device, dtype: torch.dtype | None):
+    """torch.autocast for ``dtype`` on ``device``, or a no-op context when dtype is None."""
+    return torch.autocast(device.type, dtype=dtype or torch.float32, enabled=dtype is not None)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -344,8 +366,12 @@ def _loo_loss(model: CNNLSTM, data: dict, targets: list[int], gen: torch.Generat
 
 
 def attach_features(model: CNNLSTM, data: dict, finetune: bool) -> None:
-    """Backbone inputs (and, for a frozen backbone, its features, computed once) into ``data``."""
+    """Backbone inputs (and, for a frozen backbone, its features, computed once) into ``data``.
+    On CUDA the backbone runs channels-last (tensor cores prefer NHWC)."""
     data["bb"] = model.backbone_input(data["images"])
+    if data["bb"].is_cuda:
+        model.backbone.to(memory_format=torch.channels_last)
+        data["bb"] = data["bb"].contiguous(memory_format=torch.channels_last)
     if not finetune:
         model.backbone.requires_grad_(False)
         with torch.no_grad():
@@ -488,8 +514,13 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     depths = torch.tensor(inverse_depth_planes(meta["near"], meta["far"], cfg.planes), dtype=torch.float32,
                           device=device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    use_amp = device.type == "cuda"
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    dtype = amp_dtype(cfg.amp, device)
+    # gradient scaling only for fp16 on CUDA (bf16 has float32's range)
+    scaler = torch.amp.GradScaler("cuda", enabled=dtype == torch.float16 and device.type == "cuda")
+    if cfg.compile:
+        model.decoder.compile()
+        if finetune:
+            model.backbone.compile()
     start = 0
     if ck is not None:
         _load_state(model, ck["model"], out / CHECKPOINT)
@@ -513,8 +544,9 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
             perm = torch.randperm(n, generator=gen).tolist()
             for b in range(0, n, cfg.batch_size):
                 targets = perm[b:b + cfg.batch_size]
-                with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
+                with autocast(device, dtype):
                     loss = _loo_loss(model, data, targets, gen, cfg, depths)
+                loss = loss.float()
                 opt.zero_grad(set_to_none=True)
                 scaler.scale(loss).backward()
                 scaler.step(opt)

@@ -124,6 +124,56 @@ class CNNLSTM(nn.Module):
         """The 1152-d LSTM input: [CNN feature 512 | positional encoding 512 | pose embedding 128]."""
         return torch.cat([feat, positional_encoding(pos).to(feat.dtype), self.pose_embed(vec)], dim=-1)
 
+    def source_states(self, x_src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Both layers' (h, c) after every prefix of the source sequence, fast path.
+
+        Each layer's h sequence comes from torch's fused LSTM (one call, no Python loop per step); the
+        cell states, which it does not return, are recomputed from it: the gates of all steps are one
+        matrix product of the inputs and the previous h's, and c_t = f_t * c_{t-1} + i_t * g_t is an
+        elementwise scan. The recomputed c equals the LSTM's own c as a function of the weights, so its
+        gradient is exact too. :meth:`source_states_reference` is the plain step-by-step version.
+
+        x_src: (S, 1152) step inputs. -> H, C: (S + 1, 2, 512), row k = state after the first k sources.
+        """
+        s = x_src.shape[0]
+        zeros = x_src.new_zeros(1, 2, HIDDEN)
+        if s == 0:
+            return zeros, zeros
+        x = x_src
+        hs, cs = [], []
+        for layer in range(2):
+            w_ih, w_hh = getattr(self.lstm, f"weight_ih_l{layer}"), getattr(self.lstm, f"weight_hh_l{layer}")
+            b_ih, b_hh = getattr(self.lstm, f"bias_ih_l{layer}"), getattr(self.lstm, f"bias_hh_l{layer}")
+            h, _, _ = torch.lstm(x[None], (x.new_zeros(1, 1, HIDDEN), x.new_zeros(1, 1, HIDDEN)),
+                              (w_ih, w_hh, b_ih, b_hh), True, 1, 0.0, self.training, False, True)
+            h = h[0]
+            h_prev = torch.cat([h.new_zeros(1, HIDDEN), h[:-1]])
+            gates = F.linear(x, w_ih, b_ih) + F.linear(h_prev, w_hh, b_hh)
+            gates = gates.to(torch.promote_types(gates.dtype, torch.float32))  # the scan in >= fp32 under autocast
+            i, f, g, _o = gates.chunk(4, dim=1)
+            f, u = torch.sigmoid(f), torch.sigmoid(i) * torch.tanh(g)
+            c_k, c = gates.new_zeros(HIDDEN), []
+            for k in range(s):
+                c_k = f[k] * c_k + u[k]
+                c.append(c_k)
+            hs.append(h)
+            cs.append(torch.stack(c).to(h.dtype))
+            x = h
+        H = torch.cat([zeros, torch.stack(hs, dim=1)])
+        C = torch.cat([zeros, torch.stack(cs, dim=1)])
+        return H, C
+
+    def source_states_reference(self, x_src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`source_states` one LSTM cell step at a time (the plain reference). Same shapes."""
+        zeros = x_src.new_zeros(1, HIDDEN)
+        state = [(zeros, zeros), (zeros, zeros)]
+        hs, cs = [torch.cat([zeros, zeros])], [torch.cat([zeros, zeros])]
+        for k in range(x_src.shape[0]):
+            _, state = self._step(x_src[k:k + 1], state)
+            hs.append(torch.cat([state[0][0], state[1][0]]))
+            cs.append(torch.cat([state[0][1], state[1][1]]))
+        return torch.stack(hs), torch.stack(cs)
+
     def contexts(self, feats: torch.Tensor, src_vec: torch.Tensor, src_pos: torch.Tensor,
                  q_vec: torch.Tensor, q_pos: torch.Tensor, n_before: torch.Tensor) -> torch.Tensor:
         """LSTM outputs at the query steps.
@@ -137,16 +187,10 @@ class CNNLSTM(nn.Module):
         q_vec: (B, 7); q_pos: (B,); n_before: (B,) int64 in [0, S]. -> (B, 512).
         """
         s = feats.shape[0]
-        zeros = feats.new_zeros(1, HIDDEN)
-        state = [(zeros, zeros), (zeros, zeros)]
-        hs, cs = [torch.cat([zeros, zeros])], [torch.cat([zeros, zeros])]  # per prefix length: (2 layers, 512)
-        x_src = self.step_input(feats, src_vec, src_pos)
-        upto = int(n_before.max()) if len(n_before) else 0
-        for k in range(min(upto, s)):
-            _, state = self._step(x_src[k:k + 1], state)
-            hs.append(torch.cat([state[0][0], state[1][0]]))
-            cs.append(torch.cat([state[0][1], state[1][1]]))
-        H, C = torch.stack(hs)[n_before], torch.stack(cs)[n_before]  # (B, 2, 512)
+        upto = min(int(n_before.max()) if len(n_before) else 0, s)
+        x_src = self.step_input(feats[:upto], src_vec[:upto], src_pos[:upto])
+        H, C = self.source_states(x_src)
+        H, C = H[n_before], C[n_before]  # (B, 2, 512)
         b = q_vec.shape[0]
         x_q = self.step_input(self.query_feature.expand(b, -1), q_vec, q_pos)
         h, _ = self._step(x_q, [(H[:, 0], C[:, 0]), (H[:, 1], C[:, 1])])
