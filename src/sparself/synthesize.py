@@ -116,12 +116,9 @@ def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
     norm = run.norm
     vec = torch.from_numpy(norm.vectors(st["poses"])).to(dev)
     q_vec = torch.from_numpy(norm.vectors([t.pose for t in targets])).to(dev)
-    bb = model.backbone_input(st["images"])
-    if dev.type == "cuda":
-        bb = bb.contiguous(memory_format=torch.channels_last)
     n_before = torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev)
     with autocast(dev, amp_dtype(run.cfg.amp, dev)):
-        feats = model.encode(bb)
+        feats = model.encode(model.backbone_input(st["images"]))
         ctx = model.contexts(feats, vec, torch.tensor(src_pos, dtype=torch.float32, device=dev), q_vec,
                              torch.tensor(q_pos, dtype=torch.float32, device=dev), n_before)
         if run.cfg.decoder == "fc":

@@ -366,12 +366,8 @@ def _loo_loss(model: CNNLSTM, data: dict, targets: list[int], gen: torch.Generat
 
 
 def attach_features(model: CNNLSTM, data: dict, finetune: bool) -> None:
-    """Backbone inputs (and, for a frozen backbone, its features, computed once) into ``data``.
-    On CUDA the backbone runs channels-last (tensor cores prefer NHWC)."""
+    """Backbone inputs (and, for a frozen backbone, its features, computed once) into ``data``."""
     data["bb"] = model.backbone_input(data["images"])
-    if data["bb"].is_cuda:
-        model.backbone.to(memory_format=torch.channels_last)
-        data["bb"] = data["bb"].contiguous(memory_format=torch.channels_last)
     if not finetune:
         model.backbone.requires_grad_(False)
         with torch.no_grad():
