@@ -126,8 +126,9 @@ def load_resnet18_weights(model: ResNet18, path: Path | str | None = None) -> st
     """
     if path is None:
         path = default_weights()
+    elif str(path) == NO_WEIGHTS:
+        log.info("ResNet-18: random initialisation (--weights none)")
     if str(path) == NO_WEIGHTS:
-        log.info("ResNet-18: random initialisation")
         return "random"
     path = Path(path)
     if not path.is_file():
