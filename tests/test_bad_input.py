@@ -736,7 +736,8 @@ def test_mixed_aspect_ratios_are_refused(trained, tmp_path, capsys):
     s.cameras[2] = Camera.pinhole(H, H, F)
     s.frames[2].camera_id, s.frames[2].image = 2, texture(H, H, 2)
     scene = write_posed(tmp_path / "square", s, "colmap")
-    check_failure(capsys, tmp_path / "t", "train", scene, "square", "differ in size", case="mixed aspect [train]")
+    check_failure(capsys, tmp_path / "t", "train", scene, "square", "different aspect ratios", f"{H}x{H}",
+                  case="mixed aspect [train]")
     synth_failure(capsys, trained, tmp_path, "square", "different aspect ratios", f"{H}x{H}", f"{W}x{H}",
                   extra=("--scene", scene), case="mixed aspect [synthesize]")
 

@@ -7,6 +7,7 @@ RGB float32 in [0, 1], and any unreadable file raises :class:`InputError` naming
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -337,3 +338,20 @@ def save_image(path: Path, img: np.ndarray) -> None:
     arr = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     Image.fromarray(arr).save(path, quality=95) if Path(path).suffix.lower() in (".jpg", ".jpeg") else \
         Image.fromarray(arr).save(path)
+
+
+def one_size(scene: Scene) -> Scene:
+    """Mixed image sizes: the scene with every camera resized to the most common size (with a warning),
+    so that training and synthesis see one image size; different aspect ratios are refused (InputError)."""
+    sizes = {(c.width, c.height) for c in scene.cameras.values()}
+    if len(sizes) <= 1:
+        return scene
+    counts = Counter(scene.image_size(i) for i in range(len(scene)))
+    w, h = max(sizes, key=lambda s: (counts.get(s, 0), s))
+    if any(abs(cw * h - ch * w) > 0.01 * ch * w for cw, ch in sizes):
+        raise InputError(f"{scene.source or 'scene'}: views have different aspect ratios "
+                         f"({', '.join(f'{a}x{b}' for a, b in sorted(sizes))}); use photos of one shape")
+    log.warning("%s: views have different image sizes (%s); resizing them to %dx%d", scene.source or "scene",
+                ", ".join(f"{a}x{b}" for a, b in sorted(sizes)), w, h)
+    return replace(scene, cameras={cid: c if (c.width, c.height) == (w, h) else c.resized(w, h)
+                                   for cid, c in scene.cameras.items()})

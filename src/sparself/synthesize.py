@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import torch.nn.functional as F
 from .errors import InputError
 from .model import sweep_volume
 from .outputs import atomic_dir
-from .scene import Frame, Scene
+from .scene import Frame, Scene, one_size
 from .train import (Run, TrainConfig, amp_dtype, autocast, bracket, index_positions, load_run, scene_tensors,
                     train)
 
@@ -68,23 +67,6 @@ def _decode_batched(run: Run, st: dict, pairs: list[tuple[int, int]], K_dst: tor
                            depths, hw) for b, (i, j) in enumerate(pairs[a:a + per], start=a)]
         out.append(run.model.decoder(torch.stack(xs), ctx[a:a + per]))
     return torch.cat(out)
-
-
-def one_size(scene: Scene) -> Scene:
-    """Mixed image sizes: the scene with every camera resized to the most common size (with a warning),
-    as training resizes every view to its --size; different aspect ratios are refused (InputError)."""
-    sizes = {(c.width, c.height) for c in scene.cameras.values()}
-    if len(sizes) <= 1:
-        return scene
-    counts = Counter(scene.image_size(i) for i in range(len(scene)))
-    w, h = max(sizes, key=lambda s: (counts.get(s, 0), s))
-    if any(abs(cw * h - ch * w) > 0.01 * ch * w for cw, ch in sizes):
-        raise InputError(f"{scene.source or 'scene'}: views have different aspect ratios "
-                         f"({', '.join(f'{a}x{b}' for a, b in sorted(sizes))}); use photos of one shape")
-    log.warning("%s: views have different image sizes (%s); resizing them to %dx%d", scene.source or "scene",
-                ", ".join(f"{a}x{b}" for a, b in sorted(sizes)), w, h)
-    return replace(scene, cameras={cid: c if (c.width, c.height) == (w, h) else c.resized(w, h)
-                                   for cid, c in scene.cameras.items()})
 
 
 @torch.no_grad()

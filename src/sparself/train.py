@@ -39,7 +39,7 @@ from .geometry import inverse_depth_planes, nearest_point_to_axes
 from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights, sweep_volume
 from .model.decoders import DECODERS, synthesis_loss
 from .outputs import atomic_file, check_output_dir
-from .scene import Scene
+from .scene import Scene, one_size
 
 log = logging.getLogger(__name__)
 
@@ -440,7 +440,7 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict,
     keep = [i for i in range(len(scene)) if i not in set(cfg.holdout)]
     if len(keep) < 3:
         raise InputError(f"need at least 3 training frames, got {len(keep)} (scene {scene.source})")
-    src = scene.subset(keep)
+    src = one_size(scene.subset(keep))
     small = src.resized(cfg.size)
     log_memory_estimate(memory_estimate(small, cfg, device), device)  # before any image is loaded
     try:
