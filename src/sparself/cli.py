@@ -41,6 +41,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _BarSafeHandler(logging.Handler):
+    """Log lines to stderr through tqdm, so that a message does not land on a progress bar's line."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:
+            self.handleError(record)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -49,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     level = logging.DEBUG if args.debug else (logging.WARNING if args.quiet else logging.INFO)
     # a handler on our own logger, removed afterwards, so that main() can be called in-process (tests)
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _BarSafeHandler()
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
     pkg = logging.getLogger("sparself")
     old_level, old_propagate = pkg.level, pkg.propagate
