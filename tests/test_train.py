@@ -52,10 +52,11 @@ def _state(run):
     return {k: v.clone() for k, v in run.model.state_dict().items()}
 
 
-@pytest.mark.parametrize("decoder", ["sweep", "fc"])
+@pytest.mark.parametrize("decoder", [{"decoder": "sweep"}, {"decoder": "fc"}, {"decoder": "sweep", "fallback": "flow"}],
+                         ids=["sweep", "fc", "sweep-flow"])
 def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder):
     scene = plane_scene()
-    run = train(scene, tmp_path / "run", tiny_cfg(decoder=decoder, epochs=1), progress=False)
+    run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, **decoder), progress=False)
     base = predict_leave_one_out(run, scene, [3])
     changed = dataclasses.replace(scene, frames=list(scene.frames))
     changed.frames[3] = dataclasses.replace(scene.frames[3], image=np.random.default_rng(1).random((H, W, 3),
@@ -206,3 +207,34 @@ def test_sweep_planes_surround_the_object_of_a_ring_capture():
     near, far = sweep_depth_bounds(ring)
     assert np.isclose(near, 1.0) and np.isclose(far, 3.0)
     assert sweep_depth_bounds(plane_scene()) == (1.0, 4.0)  # known bounds win
+
+
+def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path):
+    """fallback="flow": the gate's alternative is the two sources aligned by optical flow; a midpoint of
+    the textured plane comes out close to the truth, and the flow-aligned plane is what the decoder sees."""
+    from sparself.baselines import flow_pair
+    from sparself.model import sweep_volume
+
+    scene = plane_scene()
+    run = train(scene, tmp_path / "run", tiny_cfg(epochs=3, fallback="flow"), progress=False)
+    mid = Frame("mid", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([2.5 * 0.08, 0, 0])), 1, 2.5)
+    out = synthesize(run, scene, [mid])[0]
+    gt = render_plane(2.5 * 0.08)
+    assert float(np.mean((out[4:-4, 4:-4] - gt[4:-4, 4:-4]) ** 2)) < 0.1 * float(np.var(gt))
+    w0, w1 = flow_pair(render_plane(2 * 0.08), render_plane(3 * 0.08), 0.5)
+    assert float(np.mean(np.abs(0.5 * (w0 + w1) - gt)[4:-4, 4:-4])) < float(np.mean(np.abs(render_plane(2 * 0.08) - gt)[4:-4, 4:-4]))
+    src = torch.rand(2, 3, H, W)
+    plain = torch.rand(2, 3, H, W)
+    K = torch.tensor(scene.cameras[1].K, dtype=torch.float32)
+    w2c = torch.eye(4).expand(2, 4, 4)
+    x = sweep_volume(src, K.expand(2, 3, 3), w2c, K, torch.eye(4), torch.tensor([0.5, 0.25]), (H, W), plain)
+    assert torch.equal(x[0:3, -1], plain[0]) and torch.equal(x[3:6, -1], plain[1])
+    assert torch.all(x[6:8, -1] == 0.5)  # validity 1 x blend weights (equal: both sources at distance 0)
+
+
+def test_configs_saved_before_the_fallback_option_load_as_the_plain_blend():
+    old = {k: v for k, v in tiny_cfg().to_json().items() if k != "fallback"}
+    assert TrainConfig.from_json(old).fallback == "blend"
+    assert TrainConfig.from_json(tiny_cfg().to_json()).fallback == "flow" == TrainConfig().fallback
+    with pytest.raises(ConfigError, match="fallback must be blend or flow"):
+        tiny_cfg(fallback="median")

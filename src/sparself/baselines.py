@@ -154,11 +154,18 @@ def flow(scene: Scene, targets: list[Frame], rot_weight: float = 1.0, **_) -> np
         if a == b or t in (0.0, 1.0):
             out.append(i0 if t < 0.5 else i1)
             continue
-        f01, f10 = _dis_flow(i0, i1), _dis_flow(i1, i0)
-        ft0 = -(1 - t) * t * f01 + t * t * f10
-        ft1 = (1 - t) ** 2 * f01 - t * (1 - t) * f10
-        out.append((1 - t) * _backward_warp(i0, ft0) + t * _backward_warp(i1, ft1))
+        w0, w1 = flow_pair(i0, i1, t)
+        out.append((1 - t) * w0 + t * w1)
     return np.clip(np.stack(out), 0.0, 1.0).astype(np.float32)
+
+
+def flow_pair(i0: np.ndarray, i1: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Both images warped by optical flow to the intermediate time t (see :func:`flow`): I0(x + F_t0) and
+    I1(x + F_t1). i0, i1: (H, W, 3) float32 in [0, 1]; t in [0, 1] (beyond it extrapolates). -> two (H, W, 3)."""
+    f01, f10 = _dis_flow(i0, i1), _dis_flow(i1, i0)
+    ft0 = -(1 - t) * t * f01 + t * t * f10
+    ft1 = (1 - t) ** 2 * f01 - t * (1 - t) * f10
+    return _backward_warp(i0, ft0.astype(np.float32)), _backward_warp(i1, ft1.astype(np.float32))
 
 
 @dataclass

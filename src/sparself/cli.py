@@ -258,6 +258,9 @@ def _train_options(p: argparse.ArgumentParser) -> None:
                    help="ResNet-18 ImageNet weights (torchvision's resnet18-f37072fd.pth); default: the "
                         "torch hub cache copy if present, else random initialisation with a warning; "
                         "'none': random initialisation, no warning")
+    p.add_argument("--fallback", choices=["flow", "blend"], default=T.fallback,
+                   help="what the sweep decoder falls back to where depth is ambiguous: the two sources aligned "
+                        "by optical flow (default) or as they are")
     p.add_argument("--amp", choices=["auto", "off", "fp16", "bf16"], default=T.amp,
                    help="mixed precision (default auto: fp16 with gradient scaling on CUDA, float32 on CPU)")
     p.add_argument("--compile", action="store_true", help="torch.compile the decoder (pays on GPU for long runs)")
@@ -275,7 +278,7 @@ def _train_config(args):
     return TrainConfig(decoder=args.decoder, epochs=args.epochs, size=args.size, crop=args.crop,
                        backbone_size=args.backbone_size, batch_size=args.batch_size, seed=args.seed,
                        device=args.device, holdout=hold, weights=args.weights, context=not args.no_context,
-                       amp=args.amp, compile=args.compile)
+                       amp=args.amp, compile=args.compile, fallback=args.fallback)
 
 
 def _add_train(sub) -> None:

@@ -19,8 +19,8 @@ from .errors import InputError
 from .model import sweep_volume
 from .outputs import atomic_dir
 from .scene import Frame, Scene, one_size
-from .train import (Run, TrainConfig, amp_dtype, autocast, bracket, index_positions, load_run, scene_tensors,
-                    train)
+from .train import (Run, TrainConfig, amp_dtype, autocast, bracket, bracket_fraction, flow_aligned, index_positions,
+                    load_run, scene_tensors, train)
 
 log = logging.getLogger(__name__)
 
@@ -32,9 +32,10 @@ def _as_run(run_or_model) -> Run:
 
 
 def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_dst: torch.Tensor,
-                  hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor, tile: int = TILE,
-                  margin: int = 8) -> torch.Tensor:
-    """Sweep-decode one full target image in overlapping tiles (bounded memory). -> (3, H, W)."""
+                  hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor,
+                  aligned: torch.Tensor | None = None, tile: int = TILE, margin: int = 8) -> torch.Tensor:
+    """Sweep-decode one full target image in overlapping tiles (bounded memory). aligned: (2, 3, H, W)
+    flow-aligned sources (config ``fallback="flow"``) or None. -> (3, H, W)."""
     h, w = hw
     out = torch.zeros(3, h, w, device=ctx.device)
     src, K, w2c = st["images"][[i, j]], st["K"][[i, j]], st["w2c"][[i, j]]
@@ -45,7 +46,8 @@ def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_d
             Kc = K_dst.clone()
             Kc[0, 2] -= xa
             Kc[1, 2] -= ya
-            x = sweep_volume(src, K, w2c, Kc, w2c_dst, depths, (yb - ya, xb - xa))
+            crop = None if aligned is None else aligned[:, :, ya:yb, xa:xb]
+            x = sweep_volume(src, K, w2c, Kc, w2c_dst, depths, (yb - ya, xb - xa), crop)
             pred = run.model.decoder(x[None], ctx[None])[0]
             th, tw = min(tile, h - y0), min(tile, w - x0)
             out[:, y0:y0 + th, x0:x0 + tw] = pred[:, y0 - ya:y0 - ya + th, x0 - xa:x0 - xa + tw]
@@ -54,7 +56,7 @@ def _decode_tiled(run: Run, st: dict, i: int, j: int, K_dst: torch.Tensor, w2c_d
 
 def _decode_batched(run: Run, st: dict, pairs: list[tuple[int, int]], K_dst: torch.Tensor,
                     w2c_dst: torch.Tensor, hw: tuple[int, int], ctx: torch.Tensor, depths: torch.Tensor,
-                    max_voxels: int = 2 ** 25) -> torch.Tensor:
+                    aligned: torch.Tensor | None = None, max_voxels: int = 2 ** 25) -> torch.Tensor:
     """Sweep-decode whole target images several at a time (one decoder call per chunk of targets, the
     chunk bounded by ``max_voxels`` of sweep volume), for images small enough to need no tiling.
     pairs: each target's two source indices; K_dst: (T, 3, 3); w2c_dst: (T, 4, 4); ctx: (T, 512).
@@ -64,7 +66,8 @@ def _decode_batched(run: Run, st: dict, pairs: list[tuple[int, int]], K_dst: tor
     out = []
     for a in range(0, len(pairs), per):
         xs = [sweep_volume(st["images"][[i, j]], st["K"][[i, j]], st["w2c"][[i, j]], K_dst[b], w2c_dst[b],
-                           depths, hw) for b, (i, j) in enumerate(pairs[a:a + per], start=a)]
+                           depths, hw, None if aligned is None else aligned[b])
+              for b, (i, j) in enumerate(pairs[a:a + per], start=a)]
         out.append(run.model.decoder(torch.stack(xs), ctx[a:a + per]))
     return torch.cat(out)
 
@@ -111,10 +114,15 @@ def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
             K_dst = torch.tensor(np.stack([scene.cameras[t.camera_id].K for t in targets]), dtype=torch.float32,
                                  device=dev)
             w2c_dst = torch.tensor(np.stack([t.pose.w2c() for t in targets]), dtype=torch.float32, device=dev)
+            aligned = None
+            if run.cfg.fallback == "flow":
+                aligned = flow_aligned(st["images"], pairs, [bracket_fraction(src_pos, pr, float(q))
+                                                             for pr, q in zip(pairs, q_pos)])
             if max(hw) <= TILE:  # small images: all targets through the decoder together
-                out = _decode_batched(run, st, pairs, K_dst, w2c_dst, hw, ctx, depths)
+                out = _decode_batched(run, st, pairs, K_dst, w2c_dst, hw, ctx, depths, aligned)
             else:
-                out = torch.stack([_decode_tiled(run, st, i, j, K_dst[b], w2c_dst[b], hw, ctx[b], depths)
+                out = torch.stack([_decode_tiled(run, st, i, j, K_dst[b], w2c_dst[b], hw, ctx[b], depths,
+                                                 None if aligned is None else aligned[b])
                                    for b, (i, j) in enumerate(pairs)])
     return out.float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
 

@@ -57,20 +57,25 @@ def blend_weights(w2c_src: torch.Tensor, w2c_dst: torch.Tensor) -> torch.Tensor:
 
 def sweep_volume(src: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
                  K_dst: torch.Tensor, w2c_dst: torch.Tensor, depths: torch.Tensor,
-                 out_hw: tuple[int, int]) -> torch.Tensor:
+                 out_hw: tuple[int, int], plain: torch.Tensor | None = None) -> torch.Tensor:
     """Decoder input for one target: its two sources warped onto every depth plane, plus one plane of
-    the sources unwarped (the plain blend's input).
+    the sources unwarped (the plain blend's input), or aligned by optical flow when ``plain`` is given.
 
     src: (2, 3, H, W); K_src (2, 3, 3); w2c_src (2, 4, 4); K_dst (3, 3) (shifted for a crop);
     w2c_dst (4, 4); depths (D,). -> (8, D + 1, h, w). Planes 0..D-1: colours of both sources (6) and
     their validity (2) on each depth plane. Plane D: both sources mapped by their intrinsics only
     (``K_src K_dst^-1``: the source image resized/cropped to the target camera, as the plain-blend
-    baseline uses it), with validity times the :func:`blend_weights` in channels 6-7.
+    baseline uses it), with validity times the :func:`blend_weights` in channels 6-7. plain: (2, 3, h, w),
+    the two sources already aligned to the target (e.g. by flow, :func:`sparself.baselines.flow_pair`),
+    used for plane D instead of the unwarped sources (validity 1).
     """
     vol, valid = plane_sweep(src, K_src, w2c_src, K_dst, w2c_dst, depths, out_hw)  # (2,D,3,h,w), (2,D,1,h,w)
     K_src_t = torch.as_tensor(K_src, dtype=src.dtype, device=src.device)
     K_dst_t = torch.as_tensor(K_dst, dtype=src.dtype, device=src.device)
-    ident, ivalid = homography_warp(src, K_src_t @ torch.linalg.inv(K_dst_t)[None], out_hw)  # (2,3,h,w)
+    if plain is None:
+        ident, ivalid = homography_warp(src, K_src_t @ torch.linalg.inv(K_dst_t)[None], out_hw)  # (2,3,h,w)
+    else:
+        ident, ivalid = plain.to(src.dtype), torch.ones_like(plain[:, :1], dtype=src.dtype)
     wts = blend_weights(torch.as_tensor(w2c_src, dtype=torch.float64, device=src.device),
                         torch.as_tensor(w2c_dst, dtype=torch.float64, device=src.device)).to(src.dtype)
     vol = torch.cat([vol * valid, (ident * ivalid)[:, None]], dim=1)  # (2, D+1, 3, h, w)
