@@ -5,14 +5,16 @@
 - ``sweep`` (default): a small 3D CNN over a plane-sweep volume of the two bracketing source views
   warped into the target camera. It predicts a softmax over depth planes and a per-plane blend weight
   between the two sources, plus a small residual; the LSTM output modulates its features (FiLM).
-  A learned per-pixel gate mixes that depth-resolved colour with the plain (distance-weighted) blend of
-  the two unwarped sources, so that where no depth is photo-consistent (wide-baseline rings, dark
-  backgrounds) the decoder is no worse than blending. It is fully convolutional, so it trains on crops
-  and runs at any resolution.
+  A learned per-pixel gate mixes that depth-resolved colour with a fallback: the distance-weighted blend
+  of the two sources aligned to the target by optical flow (``fallback="flow"``, the default of
+  :class:`sparself.train.TrainConfig`) or as they are (``"blend"``), so that where no depth is
+  photo-consistent (wide-baseline rings, dark backgrounds) the decoder can do what flow interpolation
+  does. It is fully convolutional, so it trains on crops and runs at any resolution.
 
-Measured (benchmarks/synthesis_quality.py, seed 0, 100 epochs, 1 thread): llff_bird 24 real midpoints
-at 136x240: sweep 24.30 dB / 0.838 vs best baseline planesweep 20.99 / 0.774; templeRing 9 held-out
-views at 160x120: sweep 23.38 / 0.791 vs best baseline blend 22.88 / 0.751.
+Measured (benchmarks/synthesis_quality.py, seed 0, 100 epochs, 1 thread), PSNR dB / SSIM on held-out
+real frames: llff_bird, 24 real midpoints at 136x240: sweep with flow fallback 24.56 / 0.844, with the
+plain blend 24.36 / 0.840, best baseline plane sweep 20.99 / 0.774; templeRing, 9 held-out views at
+160x120: 26.96 / 0.881, with the plain blend 23.38 / 0.792, best baseline flow 27.50 / 0.890.
 """
 
 from __future__ import annotations
@@ -96,10 +98,10 @@ class SweepDecoder(nn.Module):
     decoder is already a soft winner-take-all sweep and training learns corrections (which matters when
     a capture has few frames to learn from).
 
-    gate: mix the depth-resolved colour with the plain blend of the two unwarped sources (the last plane
-    of x) through a learned per-pixel gate g (output = g sweep + (1 - g) blend, then the residual). Where
-    the sweep finds no consistent depth (wide baselines, textureless or dark surroundings) the decoder can
-    fall back to what the plain blend gives. The gate's logit starts at ``gate_init`` (negative: towards
+    gate: mix the depth-resolved colour with the blend of the last plane of x (the two sources unwarped,
+    or aligned by optical flow) through a learned per-pixel gate g (output = g sweep + (1 - g) blend, then
+    the residual). Where the sweep finds no consistent depth (wide baselines, textureless or dark
+    surroundings) the decoder can fall back to that blend. The gate's logit starts at ``gate_init`` (negative: towards
     the blend) and is scaled by ``gate_gain`` so that it can move a few units within a short training.
     """
 
