@@ -59,9 +59,9 @@ class TrainConfig:
     channels: feature channels of the sweep decoder's 3D CNN.
     windows: box-filter sides (px) of the matching cost the sweep decoder sees, one input channel each.
     extra_layers: additional 3x3x3 conv layers in the sweep decoder.
-    gate: the sweep decoder mixes its depth-resolved colour with the plain blend of the two unwarped
-        sources through a learned per-pixel gate (fallback where the sweep finds no consistent depth).
-    gate_init: the gate's initial logit (0: half sweep, half blend; negative: towards the blend).
+    gate: the sweep decoder mixes its depth-resolved colour with the blend of ``fallback`` through a
+        learned per-pixel gate (used where the sweep finds no consistent depth).
+    gate_init: the gate's initial logit (0: half sweep, half fallback; negative: towards the fallback).
     fallback: what the gate mixes the depth-resolved colour with: "flow" (default: the two sources aligned
         to the target by optical flow, as the flow baseline does) or "blend" (the two sources as they are).
         Measured (benchmarks/synthesis_quality.py): llff_bird 24.36 -> 24.56 dB, templeRing 23.38 -> 26.96 dB.
@@ -346,9 +346,9 @@ def _sweep_batch(data: dict, targets: list[int], crops: list[tuple[int, int, int
     """Sweep volumes (B, 8, D, h, w) of each leave-one-out target's two bracketing sources (never the
     target itself) and the target's ground truth (B, 3, h, w). crops: (y0, x0, h, w) per target."""
     xs, gts = [], []
-    imgs, K, w2c, pos = data["images"], data["K"], data["w2c"], data["pos"]
+    imgs, K, w2c = data["images"], data["K"], data["w2c"]
     for t, (y0, x0, h, w) in zip(targets, crops):
-        i, j = bracket(pos, float(pos[t]), exclude=t)
+        i, j = data["pairs"][t]
         Kc = K[t].clone()
         Kc[0, 2] -= x0
         Kc[1, 2] -= y0
@@ -486,13 +486,15 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict,
     pos = np.arange(len(keep), dtype=np.float64)
     data = {
         "images": st["images"].to(device), "K": st["K"].to(device), "w2c": st["w2c"].to(device),
-        "pos": pos, "pos_t": torch.tensor(pos, dtype=torch.float32, device=device),
+        "pos_t": torch.tensor(pos, dtype=torch.float32, device=device),
         "vec": torch.from_numpy(norm.vectors(st["poses"])).to(device),
+        # each leave-one-out target's two bracketing sources (never itself): fixed for the whole run
+        "pairs": [bracket(pos, float(pos[t]), exclude=t) for t in range(len(pos))],
     }
     data["fc_images"] = F.interpolate(data["images"], size=tuple(meta["fc_hw"]), mode="bilinear",
                                       align_corners=False, antialias=True)
-    if cfg.decoder == "sweep" and cfg.fallback == "flow":  # once per run: the leave-one-out pairs are fixed
-        pairs = [bracket(pos, float(pos[t]), exclude=t) for t in range(len(pos))]
+    if cfg.decoder == "sweep" and cfg.fallback == "flow":  # once per run, like the pairs
+        pairs = data["pairs"]
         data["aligned"] = flow_aligned(data["images"], pairs,
                                        [bracket_fraction(pos, pr, float(pos[t])) for t, pr in enumerate(pairs)])
     return data, meta
@@ -572,8 +574,7 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
             for b in range(0, n, cfg.batch_size):
                 targets = perm[b:b + cfg.batch_size]
                 with autocast(device, dtype):
-                    loss = _loo_loss(model, data, targets, gen, cfg, depths)
-                loss = loss.float()
+                    loss = _loo_loss(model, data, targets, gen, cfg, depths)  # float32 (synthesis_loss)
                 opt.zero_grad(set_to_none=True)
                 scaler.scale(loss).backward()
                 scaler.step(opt)
