@@ -33,6 +33,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from planescene import NF, NH, NW, noise, noise_scene
 from sparself.cli import build_parser, main
 from sparself.geometry import Pose, rotmat_to_quat, slerp
 from sparself.io import read_scene, write_scene
@@ -40,7 +41,7 @@ from sparself.io.colmap import write_colmap
 from sparself.io.middlebury import write_middlebury
 from sparself.scene import Camera, Frame, Scene, load_image, save_image
 
-W, H, F = 32, 24, 28.0
+W, H, F = NW, NH, NF
 
 
 # ---- helpers ------------------------------------------------------------------------------------------
@@ -54,9 +55,9 @@ AVAILABLE = _available()
 
 
 def need(*cmds: str) -> None:
+    """Every command these tests exercise exists: a removed command fails its tests (never skips them)."""
     missing = [c for c in cmds if c not in AVAILABLE]
-    if missing:
-        pytest.skip(f"`sparself {missing[0]}` is not implemented yet")
+    assert not missing, f"`sparself {missing[0]}` is missing from the CLI"
 
 
 def run(capsys, *argv) -> tuple[int, str, str]:
@@ -90,22 +91,10 @@ def listing(folder: Path) -> list[str]:
 
 
 def texture(h: int, w: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return rng.random((h, w, 3)).astype(np.float32)
+    return noise(h, w, seed)
 
 
-def make_scene(n: int = 6, size: tuple[int, int] = (W, H), same: tuple[int, ...] = (), ext: str = ".png",
-               seed: int = 0) -> Scene:
-    """n cameras on a line looking down +z, frames named 00.png..; frames in ``same`` repeat the pose of
-    the frame before them (identical consecutive poses)."""
-    cam = Camera.pinhole(size[0], size[1], F * size[0] / W)
-    frames, x = [], 0.0
-    for i in range(n):
-        if i not in same:
-            x = 0.1 * i
-        pose = Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([x, 0.0, 0.0]))
-        frames.append(Frame(f"{i:02d}{ext}", pose, 1, float(i), None, texture(size[1], size[0], seed + i)))
-    return Scene({1: cam}, frames, bounds=(1.0, 5.0))
+make_scene = noise_scene  # the suite's one scene builder (planescene.camera_line), random pixels
 
 
 def write_posed(folder: Path, scene: Scene, fmt: str = "colmap") -> Path:
@@ -242,9 +231,8 @@ def test_info_describes_a_single_view(tmp_path, capsys):
 @pytest.mark.parametrize("case", sorted(BROKEN))
 def test_broken_photo(tmp_path, capsys, case):
     """poses (and densify) decode every photo before COLMAP runs and name each broken one."""
+    need(*PHOTO_COMMANDS)
     for cmd in PHOTO_COMMANDS:
-        if cmd not in AVAILABLE:
-            continue
         d = tmp_path / cmd / "photos"
         write_photos(d, 4)
         BROKEN[case][0](d / "02.jpg")
@@ -256,9 +244,8 @@ def test_broken_image_in_a_posed_scene(tmp_path, capsys, case):
     """Commands that decode pixels name the broken file; info/plan read headers only, so they name
     files that are empty or not images and still work on a truncated JPEG."""
     src = make_scene(6, ext=".jpg")
+    need(*SCENE_COMMANDS)
     for cmd in SCENE_COMMANDS:
-        if cmd not in AVAILABLE:
-            continue
         scene = write_posed(tmp_path / cmd / "scene", src, "llff")
         # frame 0: an input of every command (evaluate holds out interior frames only, and opens those
         # only when it scores them, after all the work)
@@ -532,9 +519,9 @@ def test_bad_pose_file(tmp_path, capsys, case):
     original = write_posed(tmp_path / "orig", make_scene(6), fmt)
     edit(original, how)
     hashes = {p: p.read_bytes() for p in original.rglob("*") if p.is_file()}
+    need(*SCENE_COMMANDS, "densify")
     for cmd in SCENE_COMMANDS + ["densify"]:  # densify reads a posed scene too (and must not fall back to SfM)
-        if cmd in AVAILABLE:
-            check_failure(capsys, tmp_path / cmd, cmd, original, *needles, case=f"{case} [{cmd}]")
+        check_failure(capsys, tmp_path / cmd, cmd, original, *needles, case=f"{case} [{cmd}]")
     assert {p: p.read_bytes() for p in original.rglob("*") if p.is_file()} == hashes  # inputs untouched
 
 

@@ -185,3 +185,13 @@ def test_plot_draws_held_out_views(tmp_path):
     plot_cameras(inputs, planned=None, held_out=held, path=tmp_path / "with.png")
     plot_cameras(inputs, path=tmp_path / "without.png")
     assert green(tmp_path / "with.png") > 300 and green(tmp_path / "without.png") == 0
+
+
+def test_a_removed_command_fails_the_tests_that_need_it(monkeypatch):
+    """test_bad_input.need() fails (never skips) when a command the suite exercises is gone."""
+    import test_bad_input
+
+    monkeypatch.setattr(test_bad_input, "AVAILABLE", test_bad_input.AVAILABLE - {"train"})
+    with pytest.raises(AssertionError, match="sparself train"):
+        test_bad_input.need("plan", "train")
+    test_bad_input.need("plan")

@@ -13,7 +13,7 @@ from sparself.geometry import Pose
 from sparself.scene import Frame
 from sparself.synthesize import synthesize
 from sparself.train import amp_dtype, load_run, train
-from test_train import H, W, plane_scene, tiny_cfg
+from planescene import SH as H, SW as W, small_plane_scene as plane_scene
 
 torch.set_num_threads(1)
 
@@ -24,8 +24,8 @@ def _targets():
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    return train(plane_scene(), tmp_path_factory.mktemp("run") / "run", tiny_cfg(epochs=2), progress=False)
+def run(small_run):
+    return small_run
 
 
 def test_batched_synthesis_equals_one_target_at_a_time(run, monkeypatch):
@@ -42,7 +42,7 @@ def test_batched_synthesis_equals_one_target_at_a_time(run, monkeypatch):
     assert np.allclose(synthesize(run, scene, _targets()), batched, atol=1e-5)
 
 
-def test_amp_modes():
+def test_amp_modes(tiny_cfg):
     cpu, cuda = torch.device("cpu"), torch.device("cuda")
     assert amp_dtype("auto", cpu) is None and amp_dtype("auto", cuda) is torch.float16
     assert amp_dtype("bf16", cpu) is torch.bfloat16 and amp_dtype("off", cuda) is None
@@ -50,7 +50,7 @@ def test_amp_modes():
         tiny_cfg(amp="fp8")
 
 
-def test_bf16_autocast_training_and_synthesis_run_on_cpu(run, tmp_path):
+def test_bf16_autocast_training_and_synthesis_run_on_cpu(run, tmp_path, tiny_cfg):
     """The mixed-precision code path (used on GPU) runs end to end; bf16 synthesis of a float32 run stays
     close to the float32 images."""
     scene = plane_scene()
@@ -65,7 +65,7 @@ def test_bf16_autocast_training_and_synthesis_run_on_cpu(run, tmp_path):
     assert np.abs(synthesize(low, scene, _targets()) - ref).mean() < 0.02
 
 
-def test_compile_option_compiles_the_decoder_in_place(tmp_path, monkeypatch):
+def test_compile_option_compiles_the_decoder_in_place(tmp_path, monkeypatch, tiny_cfg):
     compiled = []
     monkeypatch.setattr(torch.nn.Module, "compile", lambda self, *a, **k: compiled.append(type(self).__name__))
     r = train(plane_scene(), tmp_path / "run", tiny_cfg(epochs=1, compile=True), progress=False)

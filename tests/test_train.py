@@ -17,35 +17,9 @@ from sparself.geometry import Pose
 from sparself.scene import Camera, Frame, Scene, save_image
 from sparself.synthesize import densify_scene, synthesize
 from sparself.train import TrainConfig, load_run, predict_leave_one_out, train
+from planescene import SF, SH, SW, small_plane_scene as plane_scene, small_view as render_plane
 
-torch.set_num_threads(1)  # the test machine's cores are shared; 1 thread is faster there
-
-W, H, F, DEPTH = 40, 28, 36.0, 2.0
-
-
-def _texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return np.stack([0.5 + 0.3 * np.sin(9 * x + 2 * y), 0.5 + 0.3 * np.cos(7 * y - 3 * x),
-                     0.5 + 0.2 * np.sin(5 * x) * np.cos(6 * y)], -1).astype(np.float32)
-
-
-def render_plane(cx: float) -> np.ndarray:
-    """A camera at (cx, 0, 0) looking down +z at the textured plane z = DEPTH. -> (H, W, 3)."""
-    v, u = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
-    return _texture(cx + DEPTH * (u - W / 2) / F, DEPTH * (v - H / 2) / F)
-
-
-def plane_scene(n: int = 7, step: float = 0.08) -> Scene:
-    cam = Camera.pinhole(W, H, F)
-    frames = [Frame(f"f{i:02d}.png", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([i * step, 0, 0])),
-                    1, float(i), None, render_plane(i * step)) for i in range(n)]
-    return Scene({1: cam}, frames, bounds=(1.0, 4.0))
-
-
-def tiny_cfg(**kw) -> TrainConfig:
-    base = dict(epochs=3, size=W, crop=16, planes=8, channels=4, batch_size=3, fc_side=12, backbone_size=32,
-                checkpoint_every=1, device="cpu")
-    base.update(kw)
-    return TrainConfig(**base)
+W, H, F = SW, SH, SF
 
 
 def _state(run):
@@ -54,7 +28,7 @@ def _state(run):
 
 @pytest.mark.parametrize("decoder", [{"decoder": "sweep"}, {"decoder": "fc"}, {"decoder": "sweep", "fallback": "flow"}],
                          ids=["sweep", "fc", "sweep-flow"])
-def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder):
+def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder, tiny_cfg):
     scene = plane_scene()
     run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, **decoder), progress=False)
     base = predict_leave_one_out(run, scene, [3])
@@ -68,7 +42,7 @@ def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder):
     assert not np.allclose(predict_leave_one_out(run, changed, [3]), base)
 
 
-def test_holdout_frames_are_never_opened(tmp_path):
+def test_holdout_frames_are_never_opened(tmp_path, tiny_cfg):
     scene = plane_scene()
     broken = tmp_path / "held_out.png"
     broken.write_bytes(b"")  # opening it would raise InputError
@@ -79,7 +53,7 @@ def test_holdout_frames_are_never_opened(tmp_path):
         train(scene, tmp_path / "run2", tiny_cfg(epochs=1, holdout=(9,)), progress=False)
 
 
-def test_a_tiny_sequence_is_fitted(tmp_path):
+def test_a_tiny_sequence_is_fitted(tmp_path, tiny_cfg):
     scene = plane_scene(5)
     train(scene, tmp_path / "run", tiny_cfg(decoder="fc", epochs=30, batch_size=5, checkpoint_every=10),
           progress=False)
@@ -89,7 +63,7 @@ def test_a_tiny_sequence_is_fitted(tmp_path):
     assert loss[-1] < 0.2 * loss[0]
 
 
-def test_resume_ends_with_the_same_weights_as_an_uninterrupted_run(tmp_path, caplog):
+def test_resume_ends_with_the_same_weights_as_an_uninterrupted_run(tmp_path, caplog, tiny_cfg):
     scene = plane_scene()
     with caplog.at_level(logging.INFO, logger="sparself"):
         full = train(scene, tmp_path / "full", tiny_cfg(epochs=4), progress=False)
@@ -106,7 +80,7 @@ def test_resume_ends_with_the_same_weights_as_an_uninterrupted_run(tmp_path, cap
     assert saved["epochs"] == 4 and saved["decoder"] == "sweep"
 
 
-def test_resume_with_another_config_is_a_clear_error(tmp_path):
+def test_resume_with_another_config_is_a_clear_error(tmp_path, tiny_cfg):
     scene = plane_scene()
     train(scene, tmp_path / "run", tiny_cfg(epochs=1), progress=False)
     with pytest.raises(ConfigError, match="decoder='sweep'.*asked: 'fc'"):
@@ -123,7 +97,7 @@ def test_resume_with_another_config_is_a_clear_error(tmp_path):
         load_run(tmp_path / "nothing")
 
 
-def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path):
+def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path, tiny_cfg):
     scene = plane_scene()
     targets = [Frame("mid", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([2.5 * 0.08, 0, 0])), 1, 2.5),
                Frame("after", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([6.2 * 0.08, 0, 0])), 1, 6.2)]
@@ -143,7 +117,7 @@ def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path):
     assert np.array_equal(dense.frames[3].image, out1[0]) and dense.frames[3].synthetic
 
 
-def test_densify_end_to_end(tmp_path):
+def test_densify_end_to_end(tmp_path, tiny_cfg):
     from sparself import io as sio
     from sparself.plan import PlanConfig
     from sparself.synthesize import DensifyConfig, densify
@@ -209,7 +183,7 @@ def test_sweep_planes_surround_the_object_of_a_ring_capture():
     assert sweep_depth_bounds(plane_scene()) == (1.0, 4.0)  # known bounds win
 
 
-def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path):
+def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path, tiny_cfg):
     """fallback="flow": the gate's alternative is the two sources aligned by optical flow; a midpoint of
     the textured plane comes out close to the truth, and the flow-aligned plane is what the decoder sees."""
     from sparself.baselines import flow_pair
@@ -232,7 +206,7 @@ def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path):
     assert torch.all(x[6:8, -1] == 0.5)  # validity 1 x blend weights (equal: both sources at distance 0)
 
 
-def test_configs_saved_before_the_fallback_option_load_as_the_plain_blend():
+def test_configs_saved_before_the_fallback_option_load_as_the_plain_blend(tiny_cfg):
     old = {k: v for k, v in tiny_cfg().to_json().items() if k != "fallback"}
     assert TrainConfig.from_json(old).fallback == "blend"
     assert TrainConfig.from_json(tiny_cfg().to_json()).fallback == "flow" == TrainConfig().fallback

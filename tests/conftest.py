@@ -1,0 +1,44 @@
+"""Shared fixtures. The synthetic scenes themselves come from ONE builder, :mod:`planescene`."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from planescene import SW, noise_scene, small_plane_scene
+from sparself.train import TrainConfig, train
+
+torch.set_num_threads(1)  # the test machine's cores are shared; 1 thread is faster there
+
+
+def make_tiny_cfg(**kw) -> TrainConfig:
+    """A network small enough for the suite: the small plane scene's size, 8 planes, 4 channels."""
+    base = dict(epochs=3, size=SW, crop=16, planes=8, channels=4, batch_size=3, fc_side=12, backbone_size=32,
+                checkpoint_every=1, device="cpu")
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+@pytest.fixture
+def tiny_cfg():
+    """``tiny_cfg(**overrides) -> TrainConfig`` (see :func:`make_tiny_cfg`)."""
+    return make_tiny_cfg
+
+
+@pytest.fixture
+def small_scene():
+    """The 7-view small plane scene (40 x 28 px, plane at depth 2, bounds (1, 4))."""
+    return small_plane_scene()
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    """A run trained for 2 epochs on the small plane scene (shared by a module's tests; do not modify)."""
+    return train(small_plane_scene(), tmp_path_factory.mktemp("run") / "run", make_tiny_cfg(epochs=2),
+                 progress=False)
+
+
+@pytest.fixture
+def noisy_scene():
+    """A 6-view scene of random pixels (names 00.png..05.png), for tests of files and errors."""
+    return noise_scene(6)
