@@ -14,7 +14,7 @@ from sparself.cli import main
 from sparself.errors import InputError, RegistrationError
 from sparself.geometry import Pose, rotmat_to_quat, transform_pose
 from sparself.io import read_colmap, read_scene
-from sparself.scene import Camera, Frame, Scene
+from sparself.scene import Camera, Frame, Scene, load_image
 from sparself.sfm import SfmConfig, compare_poses, recover_poses, validate_images
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -65,9 +65,12 @@ def test_cli_poses_registers_and_writes_layout(bird_cli_out, bird_small, capsys)
     assert (bird_cli_out / "images" / "001.jpg").read_bytes() == (bird_small / "001.jpg").read_bytes()
     cam = scene.camera(0)
     assert (cam.width, cam.height) == (544, 960)
-    # the EXIF-rotated photo is registered, copied unchanged, and upright as every stage loads it
+    # the EXIF-rotated photo is registered, and images/ holds it upright (no EXIF flag left for other tools
+    # to apply twice or ignore), at the camera's size, the same picture as every stage loads from the original
     assert ROTATED in rep["registered"]
-    assert (bird_cli_out / "images" / ROTATED).read_bytes() == (bird_small / ROTATED).read_bytes()
+    with Image.open(bird_cli_out / "images" / ROTATED) as im:
+        assert im.size == (544, 960) and im.mode == "RGB" and im.getexif().get(0x0112, 1) == 1
+    assert np.abs(load_image(bird_cli_out / "images" / ROTATED) - load_image(bird_small / ROTATED)).mean() < 0.01
     assert scene.load(scene.frames.index(next(f for f in scene.frames if f.name == ROTATED))).shape == (960, 544, 3)
     # the three writers agree with each other
     from sparself.io import read_llff, read_nerfstudio

@@ -6,7 +6,9 @@ RGB float32 in [0, 1], and any unreadable file raises :class:`InputError` naming
 
 from __future__ import annotations
 
+import functools
 import logging
+import os
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -259,17 +261,138 @@ class Scene:
 
 # ---- image files -------------------------------------------------------------------------------
 
+HEIF_EXTENSIONS = (".heic", ".heif")
+
+
+@functools.cache
+def _heif_readable() -> bool:
+    """HEIC/HEIF photos (iPhones) are read when pillow-heif is installed (it registers a PIL opener);
+    it is not a dependency of sparself."""
+    try:
+        from pillow_heif import register_heif_opener
+    except ImportError:
+        return False
+    register_heif_opener()
+    return True
+
+
+def image_extensions() -> tuple[str, ...]:
+    """Suffixes of the image files sparself reads (HEIC/HEIF too when pillow-heif is installed)."""
+    return IMAGE_EXTENSIONS + (HEIF_EXTENSIONS if _heif_readable() else ())
+
+
+def _image_files(folder: Path) -> list[Path]:
+    # names starting with "." are hidden files: macOS AppleDouble "._IMG_0001.JPG" (resource-fork metadata,
+    # not a picture, copied beside every photo onto FAT/exFAT cards and network shares), .DS_Store, ...
+    exts = image_extensions()
+    return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")
+                  and p.suffix.lower() in exts)
+
+
+HEIF_HINT = ("convert them to JPEG first (macOS: `sips -s format jpeg IMG.HEIC --out IMG.jpg`; Linux: "
+             "`heif-convert IMG.HEIC IMG.jpg`; or set the iPhone to Settings > Camera > Formats > Most "
+             "Compatible), or install pillow-heif so that sparself can read them")
+
+
+def _subfolders_with_images(folder: Path, max_depth: int = 3, limit: int = 5) -> list[tuple[str, int]]:
+    """(relative sub-folder, image count) of the sub-folders holding images, e.g. a card's DCIM/100APPLE."""
+    found = []
+    exts = image_extensions()
+    for root, dirs, files in os.walk(folder):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        depth = len(Path(root).relative_to(folder).parts)
+        if depth >= max_depth:
+            dirs[:] = []
+        n = sum(1 for f in files if not f.startswith(".") and Path(f).suffix.lower() in exts)
+        if n and depth:
+            found.append((Path(root).relative_to(folder).as_posix(), n))
+            if len(found) > limit:
+                break
+    return found
+
+
 def list_images(folder: Path) -> list[Path]:
-    """Image files of a folder, sorted by name. Raises InputError if the folder is missing or has none."""
+    """Image files of a folder, sorted by name; hidden files (``._*``, ``.DS_Store``) are skipped, HEIC/HEIF
+    photos are skipped with a warning saying how to convert them (read when pillow-heif is installed).
+    Raises InputError if the folder is missing or has no images (naming sub-folders that hold some)."""
     folder = Path(folder)
     if not folder.exists():
         raise InputError(f"{folder}: no such folder")
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
-    if not files:
-        raise InputError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)})")
-    return files
+    files = _image_files(folder)
+    heif = [] if _heif_readable() else sorted(p.name for p in folder.iterdir() if p.is_file()
+                                               and not p.name.startswith(".") and p.suffix.lower() in HEIF_EXTENSIONS)
+    if heif and files:
+        log.warning("%s: skipping %d HEIC/HEIF photo(s) (%s) that sparself cannot read; %s", folder, len(heif),
+                    _some(heif), HEIF_HINT)
+    if files:
+        return files
+    if heif:
+        raise InputError(f"{folder}: no images sparself can read: {len(heif)} HEIC/HEIF photo(s) ({_some(heif)}); "
+                         f"{HEIF_HINT}")
+    sub = _subfolders_with_images(folder)
+    if sub:
+        named = ", ".join(f"{d} ({n} images)" for d, n in sub[:5]) + (", ..." if len(sub) > 5 else "")
+        raise InputError(f"{folder}: no images in this folder itself, but in its sub-folder(s) {named}; "
+                         f"pass one of those folders, e.g. {folder / sub[0][0]}")
+    raise InputError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)})")
+
+
+def _some(names: Sequence[str], k: int = 5) -> str:
+    """The first k names, and how many more."""
+    return ", ".join(names[:k]) + (f" and {len(names) - k} more" if len(names) > k else "")
+
+
+# ---- conversions to upright 8/32-bit RGB: what they are, said once per folder with a count ----------------
+
+_SIXTEEN_BIT = ("I;16", "I;16B", "I;16L", "I")
+
+
+def conversion_of(path: Path) -> tuple[str | None, bool]:
+    """(colour conversion or None, EXIF-rotated) of an image file, from its header only. The conversion is
+    the PIL mode that :func:`load_image` turns into RGB ("L", "RGBA", "CMYK", "P", ...) or "16-bit"."""
+    with Image.open(path) as im:
+        mode = im.mode
+        rotated = int(im.getexif().get(0x0112, 1) or 1) not in (0, 1)
+    return ("16-bit" if mode in _SIXTEEN_BIT else None if mode == "RGB" else mode), rotated
+
+
+def needs_conversion(path: Path) -> bool:
+    """True when the file is not stored as upright RGB: its pixels as sparself sees them differ from its
+    bytes as other tools read them (a copy must be converted, not copied)."""
+    conv, rotated = conversion_of(path)
+    return conv is not None or rotated
+
+
+_WARNED: set[tuple[str, str]] = set()
+
+
+def note_conversions(paths: Sequence[Path]) -> None:
+    """Log the conversions :func:`load_image` applies to these files: one line per folder and kind (a
+    warning for colour conversions, information for EXIF rotation), with a count and the first names;
+    a folder and kind said once per process, so that loading the same images again stays quiet."""
+    kinds: dict[tuple[str, str], list[str]] = {}
+    for p in paths:
+        try:
+            conv, rotated = conversion_of(p)
+        except (OSError, SyntaxError, ValueError):
+            continue  # unreadable files are reported by load_image itself
+        folder = str(Path(p).parent)
+        if conv is not None:
+            kinds.setdefault((folder, conv), []).append(Path(p).name)
+        if rotated:
+            kinds.setdefault((folder, "EXIF"), []).append(Path(p).name)
+    for (folder, kind), names in kinds.items():
+        if (folder, kind) in _WARNED:
+            continue
+        _WARNED.add((folder, kind))
+        if kind == "EXIF":
+            log.info("%s: %d EXIF-rotated image(s) turned upright: %s", folder, len(names), _some(names))
+        else:
+            what = {"L": "grayscale L", "LA": "grayscale LA", "P": "palette P", "I;16": "16-bit"}.get(kind, kind)
+            why = " (alpha dropped)" if kind in ("RGBA", "LA", "PA") else ""
+            log.warning("%s: %d %s image(s) converted to RGB%s: %s", folder, len(names), what, why, _some(names))
 
 
 def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = True) -> np.ndarray:
@@ -287,19 +410,20 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
     try:
         with Image.open(path) as im:
             im.load()
+            rotated = int(im.getexif().get(0x0112, 1) or 1) not in (0, 1)
             im = ImageOps.exif_transpose(im)
             mode = im.mode
-            if mode in ("I;16", "I;16B", "I;16L", "I"):
+            if mode in _SIXTEEN_BIT:
                 arr = np.asarray(im, dtype=np.float32)
                 arr = arr / (65535.0 if arr.max() > 255 or mode.startswith("I;16") else 255.0)
                 arr = np.repeat(arr[..., None], 3, axis=2)
-                if warn:
-                    log.warning("%s: 16-bit grayscale image converted to RGB", path.name)
             else:
-                if mode not in ("RGB",) and warn:
-                    log.warning("%s: %s image converted to RGB", path.name, mode)
                 arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+        if warn and (mode != "RGB" or rotated):
+            _note_folder_once(path, "16-bit" if mode in _SIXTEEN_BIT else None if mode == "RGB" else mode, rotated)
     except UnidentifiedImageError:
+        if path.suffix.lower() in HEIF_EXTENSIONS:
+            raise InputError(f"{path}: HEIC/HEIF photo that sparself cannot read; {HEIF_HINT}") from None
         raise InputError(f"{path}: not an image file (cannot identify format)") from None
     except (OSError, SyntaxError, ValueError) as e:
         raise InputError(f"{path}: cannot decode image ({e}); the file may be truncated or corrupt") from None
@@ -307,6 +431,19 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
     if size is not None and (arr.shape[1], arr.shape[0]) != tuple(size):
         arr = resize_image(arr, size)
     return arr
+
+
+def _note_folder_once(path: Path, conv: str | None, rotated: bool) -> None:
+    """A converted image: say what its folder's images need (once per folder and kind, with a count)."""
+    folder = str(path.parent)
+    todo = [k for k in (conv, "EXIF" if rotated else None) if k is not None and (folder, k) not in _WARNED]
+    if not todo:
+        return
+    try:
+        note_conversions(_image_files(path.parent))
+    except OSError:
+        pass
+    note_conversions([path])  # a file the folder listing skips (an odd suffix) is still said once
 
 
 def image_size_of(path: Path) -> tuple[int, int]:

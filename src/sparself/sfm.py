@@ -24,7 +24,8 @@ import numpy as np
 
 from .errors import InputError, RegistrationError
 from .geometry import align_similarity, rotation_angle_deg
-from .scene import IMAGE_EXTENSIONS, Scene, image_size_of, list_images, load_image
+from .scene import (HEIF_EXTENSIONS, Scene, image_extensions, image_size_of, list_images, load_image,
+                    needs_conversion, note_conversions, save_image)
 
 log = logging.getLogger(__name__)
 
@@ -105,8 +106,8 @@ def validate_images(image_folder: Path, names: Sequence[str] | None = None) -> l
         missing = [str(p) for p in paths if not p.is_file()]
         if missing:
             raise InputError(f"image file(s) not found: {', '.join(missing)}")
-    others = sorted(p.name for p in folder.iterdir() if p.is_file() and p.suffix.lower() not in IMAGE_EXTENSIONS
-                    and not p.name.startswith(".")) if names is None else []
+    others = sorted(p.name for p in folder.iterdir() if p.is_file() and p.suffix.lower() not in
+                    image_extensions() + HEIF_EXTENSIONS and not p.name.startswith(".")) if names is None else []
     if others:
         log.info("%s: ignoring %d non-image file(s): %s", folder, len(others), ", ".join(others[:5]))
     if len(paths) < 3:
@@ -122,6 +123,7 @@ def validate_images(image_folder: Path, names: Sequence[str] | None = None) -> l
             bad.append(str(e))
     if bad:
         raise InputError("; ".join(bad))
+    note_conversions(paths)  # said here as training says it, once per kind with a count
     if len(sizes) > 1:
         main = max(sizes, key=lambda k: len(sizes[k]))
         odd = [f"{n} ({w}x{h})" for (w, h), ns in sizes.items() if (w, h) != main for n in ns]
@@ -130,31 +132,21 @@ def validate_images(image_folder: Path, names: Sequence[str] | None = None) -> l
     return paths
 
 
-def _exif_orientation(path: Path) -> int:
-    from PIL import Image
-
-    with Image.open(path) as im:
-        return int(im.getexif().get(0x0112, 1))
-
-
-def _upright_inputs(paths: Sequence[Path], work: Path) -> Path:
-    """The folder COLMAP should read. COLMAP ignores EXIF orientation while sparself's image loading
-    applies it; so when any photo is EXIF-rotated, COLMAP gets upright copies (same names) in ``work``,
-    and the recovered cameras match the images as every other stage sees them."""
-    from PIL import Image, ImageOps
-
-    rotated = [p for p in paths if _exif_orientation(p) not in (0, 1)]
-    if not rotated:
+def _colmap_inputs(paths: Sequence[Path], work: Path) -> Path:
+    """The folder COLMAP should read. COLMAP ignores EXIF orientation and reads grayscale, 16-bit, RGBA or
+    CMYK files its own way, while sparself's image loading turns every photo into upright RGB; so such
+    photos reach COLMAP as upright RGB copies (same names, made by the same loader), and the recovered
+    cameras match the images as every other stage sees them."""
+    odd = [p for p in paths if needs_conversion(p)]
+    if not odd:
         return paths[0].parent
-    log.info("sfm: %d photo(s) are EXIF-rotated (%s); COLMAP reads upright copies", len(rotated),
-             ", ".join(p.name for p in rotated[:5]))
+    log.info("sfm: %d photo(s) need conversion (%s); COLMAP reads upright RGB copies", len(odd),
+             ", ".join(p.name for p in odd[:5]))
     d = work / "upright"
     d.mkdir()
     for p in paths:
-        if p in rotated:
-            with Image.open(p) as im:
-                fmt = im.format
-                ImageOps.exif_transpose(im).save(d / p.name, format=fmt, quality=100)
+        if p in odd:
+            save_image(d / p.name, load_image(p, warn=False))
         else:
             (d / p.name).symlink_to(p.resolve())
     return d
@@ -242,7 +234,7 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
     work = Path(tempfile.mkdtemp(prefix="sparself-sfm-"))
     try:
         db = work / "database.db"
-        colmap_images = _upright_inputs(paths, work)
+        colmap_images = _colmap_inputs(paths, work)
         with _quiet_colmap(cfg.debug):
             t0 = time.perf_counter()
             log.info("sfm: extracting SIFT features from %d images%s", len(names),

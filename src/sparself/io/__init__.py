@@ -22,7 +22,7 @@ from typing import Sequence
 
 from ..errors import InputError
 from ..outputs import atomic_dir
-from ..scene import Frame, Scene, image_size_of, save_image
+from ..scene import Frame, Scene, image_size_of, needs_conversion, save_image
 from .colmap import find_model_dir, read_colmap, write_colmap
 from .llff import read_llff, write_llff
 from .middlebury import find_par_file, read_middlebury, write_middlebury
@@ -90,7 +90,7 @@ def _write_image(frame: Frame, scene: Scene, i: int, dst: Path, link: bool) -> N
     cam = scene.camera(i)
     dst.parent.mkdir(parents=True, exist_ok=True)
     if frame.image is None and frame.path is not None and image_size_of(frame.path) == (cam.width, cam.height) \
-            and Path(frame.path).suffix.lower() == dst.suffix.lower():
+            and Path(frame.path).suffix.lower() == dst.suffix.lower() and not needs_conversion(frame.path):
         if link:
             os.symlink(Path(frame.path).resolve(), dst)
         else:
@@ -98,7 +98,7 @@ def _write_image(frame: Frame, scene: Scene, i: int, dst: Path, link: bool) -> N
         return
     if frame.image is None and frame.path is None:
         raise InputError(f"frame {frame.name} has no image to write (a planned pose that was not synthesized)")
-    save_image(dst, scene.load(i))  # resized to its camera when the scene was resized
+    save_image(dst, scene.load(i))  # resized to its camera when the scene was resized; upright 8-bit RGB
 
 
 def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMATS, *,

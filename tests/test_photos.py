@@ -1,0 +1,172 @@
+"""Photos as they come off phones and cameras (issue 14, section 6): hidden AppleDouble files, HEIC photos,
+a card's DCIM sub-folders, CMYK / grayscale / 16-bit / EXIF-rotated photos said once with a count, upright
+RGB copies in a written scene, and a recovered camera that cannot be right."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sparself.cli import main
+from sparself.errors import InputError
+from sparself.geometry import Pose, rotmat_to_quat
+from sparself.io import read_scene, write_scene
+from sparself.scene import Camera, Frame, Scene, list_images, load_image, needs_conversion
+from sparself.sfm import validate_images
+
+W, H = 64, 48
+
+
+def heif_readable() -> bool:
+    from sparself.scene import _heif_readable
+
+    return _heif_readable()
+
+
+def photo(path: Path, seed: int, mode: str = "RGB", size=(W, H)) -> np.ndarray:
+    """A textured RGB picture saved in ``mode``; -> the RGB uint8 pixels it was made from."""
+    rgb = (np.random.default_rng(seed).random((size[1], size[0], 3)) * 255).astype(np.uint8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(rgb).convert(mode).save(path, quality=95)
+    return rgb
+
+
+def apple_double(path: Path) -> None:
+    """What macOS writes beside each file on FAT/exFAT: a 4 KB resource-fork header, not a picture."""
+    path.write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        " + bytes(4080))
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_error_line(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "error:" in lines[0] and "Traceback" not in err, err
+    return lines[0]
+
+
+# ---- hidden files, HEIC, DCIM ------------------------------------------------------------------------------
+
+def test_apple_double_and_hidden_files_are_skipped(tmp_path):
+    for i in range(3):
+        photo(tmp_path / f"IMG_000{i}.JPG", i)
+        apple_double(tmp_path / f"._IMG_000{i}.JPG")
+    (tmp_path / ".DS_Store").write_bytes(b"\x00\x00\x00\x01Bud1" + bytes(100))
+    assert [p.name for p in list_images(tmp_path)] == ["IMG_0000.JPG", "IMG_0001.JPG", "IMG_0002.JPG"]
+    assert [p.name for p in validate_images(tmp_path)] == ["IMG_0000.JPG", "IMG_0001.JPG", "IMG_0002.JPG"]
+
+
+def test_only_apple_double_files_is_no_images(tmp_path, capsys):
+    d = tmp_path / "photos"
+    d.mkdir()
+    for i in range(3):
+        apple_double(d / f"._IMG_000{i}.JPG")
+    code, _, err = run(capsys, "poses", d, "--out", tmp_path / "out")
+    assert code == 2 and "no images found" in one_error_line(err)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif(heif_readable(), reason="pillow-heif is installed: HEIC photos are read")
+def test_heic_photos_are_skipped_with_a_hint(tmp_path, caplog):
+    for i in range(3):
+        photo(tmp_path / f"IMG_000{i}.jpg", i)
+    (tmp_path / "IMG_0100.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic" + bytes(64))
+    with caplog.at_level(logging.WARNING, logger="sparself"):
+        names = [p.name for p in list_images(tmp_path)]
+    assert names == ["IMG_0000.jpg", "IMG_0001.jpg", "IMG_0002.jpg"]
+    msg = caplog.records[-1].getMessage()
+    assert "skipping 1 HEIC/HEIF photo(s) (IMG_0100.HEIC)" in msg and "heif-convert" in msg and "sips" in msg
+    with pytest.raises(InputError, match="HEIC/HEIF photo that sparself cannot read; convert them to JPEG"):
+        load_image(tmp_path / "IMG_0100.HEIC")
+
+
+@pytest.mark.skipif(heif_readable(), reason="pillow-heif is installed: HEIC photos are read")
+def test_folder_of_only_heic_photos_is_one_line_with_the_hint(tmp_path, capsys):
+    d = tmp_path / "photos"
+    d.mkdir()
+    for i in range(4):
+        (d / f"IMG_{i:04d}.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic" + bytes(64))
+    code, _, err = run(capsys, "poses", d, "--out", tmp_path / "out")
+    line = one_error_line(err)
+    assert code == 2 and "4 HEIC/HEIF photo(s) (IMG_0000.HEIC, IMG_0001.HEIC" in line
+    assert "convert them to JPEG" in line and not (tmp_path / "out").exists()
+
+
+def test_photos_only_in_dcim_subfolders_are_named(tmp_path, capsys):
+    card = tmp_path / "card"
+    for i in range(3):
+        photo(card / "DCIM" / "100APPLE" / f"IMG_{i:04d}.JPG", i)
+    photo(card / "DCIM" / "101APPLE" / "IMG_0100.JPG", 9)
+    apple_double(card / "DCIM" / "100APPLE" / "._IMG_0000.JPG")
+    (card / "DCIM" / ".Trashes").mkdir()
+    photo(card / "DCIM" / ".Trashes" / "x.jpg", 3)  # hidden folders are not offered
+    with pytest.raises(InputError) as e:
+        list_images(card)
+    assert "sub-folder(s) DCIM/100APPLE (3 images), DCIM/101APPLE (1 images)" in str(e.value)
+    assert ".Trashes" not in str(e.value)
+    code, _, err = run(capsys, "poses", card, "--out", tmp_path / "out")
+    line = one_error_line(err)
+    assert code == 2 and f"pass one of those folders, e.g. {card / 'DCIM' / '100APPLE'}" in line
+
+
+# ---- conversions: said once per folder and kind, with a count --------------------------------------------
+
+def test_conversions_are_said_once_with_a_count(tmp_path, caplog):
+    want = {}
+    for i in range(3):
+        want[f"g{i}.png"] = photo(tmp_path / f"g{i}.png", i, "L")
+    want["c.jpg"] = photo(tmp_path / "c.jpg", 5, "CMYK")
+    want["rgb.png"] = photo(tmp_path / "rgb.png", 6)
+    with caplog.at_level(logging.WARNING, logger="sparself"):
+        imgs = {n: load_image(tmp_path / n) for n in sorted(want)}
+        again = [load_image(tmp_path / n) for n in sorted(want)]
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == [f"{tmp_path}: 1 CMYK image(s) converted to RGB: c.jpg",
+                     f"{tmp_path}: 3 grayscale L image(s) converted to RGB: g0.png, g1.png, g2.png"], lines
+    for n, rgb in want.items():
+        assert imgs[n].shape == (H, W, 3) and np.array_equal(imgs[n], again[sorted(want).index(n)])
+    # gray: the luma of the RGB it was made from, in all three channels
+    gray = np.asarray(Image.fromarray(want["g1.png"]).convert("L"), np.float32) / 255
+    np.testing.assert_allclose(imgs["g1.png"], np.repeat(gray[..., None], 3, 2), atol=1e-6)
+    # CMYK JPEG: the same colours as the RGB picture it was made from (JPEG noise aside)
+    assert np.abs(imgs["c.jpg"] * 255 - want["c.jpg"]).mean() < 12
+    assert [needs_conversion(tmp_path / n) for n in ("g0.png", "c.jpg", "rgb.png")] == [True, True, False]
+
+
+def _rotated(path: Path, seed: int) -> np.ndarray:
+    """A photo stored sideways with EXIF orientation 6, as phones write them; -> its upright pixels."""
+    rgb = (np.random.default_rng(seed).random((H, W, 3)) * 255).astype(np.uint8)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(rgb).transpose(Image.Transpose.ROTATE_90).save(path, exif=exif)
+    return rgb
+
+
+def test_written_scene_holds_upright_rgb_copies(tmp_path):
+    """write_scene (poses, synthesize and densify write through it) copies plain RGB photos byte for byte,
+    and writes every other photo as upright 8-bit RGB at its camera's size with no EXIF rotation flag."""
+    src = tmp_path / "src"
+    src.mkdir()
+    up = {"0.png": photo(src / "0.png", 0), "1.png": photo(src / "1.png", 1, "L"),
+          "2.png": _rotated(src / "2.png", 2), "3.png": photo(src / "3.png", 3, "RGBA")}
+    Image.fromarray(up["0.png"][..., 0].astype(np.uint16) * 257).save(src / "4.png")
+    frames = [Frame(f"{i}.png", Pose(np.array([1.0, 0, 0, 0]), np.array([i * 0.1, 0, 0])), 1, float(i),
+                    path=src / f"{i}.png") for i in range(5)]
+    out = tmp_path / "out"
+    write_scene(Scene({1: Camera.pinhole(W, H, 50.0)}, frames), out)
+    assert (out / "images" / "0.png").read_bytes() == (src / "0.png").read_bytes()
+    for i in range(1, 5):
+        with Image.open(out / "images" / f"{i}.png") as im:
+            assert im.mode == "RGB" and im.size == (W, H) and im.getexif().get(0x0112, 1) == 1, i
+    np.testing.assert_array_equal(np.asarray(Image.open(out / "images" / "2.png")), up["2.png"])
+    np.testing.assert_array_equal(np.asarray(Image.open(out / "images" / "3.png")), up["3.png"])
+    np.testing.assert_array_equal(np.asarray(Image.open(out / "images" / "4.png"))[..., 1], up["0.png"][..., 0])
+    back = read_scene(out)
+    assert all(back.load(i).shape == (H, W, 3) for i in range(5))
