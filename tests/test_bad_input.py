@@ -331,7 +331,7 @@ def render_corner(pose: Pose, w: int = 96, h: int = 72, f: float = 80.0) -> np.n
     return img
 
 
-def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrable(tmp_path, capsys):
+def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrable(tmp_path, capsys, monkeypatch):
     """The one real COLMAP run here (about 2 s): 8 views of a textured box corner, saved as RGB, gray,
     RGBA, 16-bit gray and an EXIF-rotated PNG, plus a photo of noise that cannot be registered.
     The noise photo is named and excluded, the run goes on with the other 8, and the rotated one gets
@@ -358,6 +358,21 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     noise = np.random.default_rng(5).random((72, 96, 3))
     Image.fromarray((noise * 255).astype(np.uint8)).save(d / "zz_noise.png")
     hashes = {p.name: p.read_bytes() for p in d.iterdir()}
+    # the pose check's repair, on this same run: the check calls 03.png a suspect on the first model and on
+    # the first repair (so that repair is not taken); the second repair is checked for real
+    import sparself.sfm as sfm
+    from sparself.posecheck import Suspect
+
+    real_check, calls = sfm.check_poses, []
+
+    def check(scene, stats=None):
+        c = real_check(scene, stats)
+        calls.append(c.names)
+        if len(calls) <= 2:
+            c.suspects = [Suspect("03.png", ["flagged by the test"])]
+        return c
+
+    monkeypatch.setattr(sfm, "check_poses", check)
     os.chmod(d, 0o555)  # the input folder is only read
     try:
         code, out, err = run(capsys, "poses", d, "--out", tmp_path / "scene", "-q")
@@ -370,6 +385,25 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     assert {p.name: p.read_bytes() for p in d.iterdir()} == hashes
     rep = json.loads((tmp_path / "scene" / "sfm_report.json").read_text())
     assert rep["unregistered"] == ["zz_noise.png"]
+    # the real check finds no suspect in any of the three models. Repair 1 (03.png's matches restricted to
+    # its neighbours) still "has" the suspect; repair 2 (every photo matched only with its neighbours)
+    # registers too few of these wide-baseline views to be taken: the first model is kept, and the summary
+    # and the report say plainly that the repair failed
+    assert calls == [[], [], []], rep["repair"]
+    assert rep["suspects"] == [{"name": "03.png", "reasons": ["flagged by the test"]}]
+    assert "1 suspect photo(s), poses probably wrong: 03.png (flagged by the test) [tried matches of the " \
+           "suspects restricted to their capture-order neighbours (1 pairs dropped): 8 registered, 1 suspect(s); " \
+           "all matches restricted to capture-order neighbours (a sequential order prior)" in out
+    assert rep["repair"].endswith("could not repair: 03.png still look wrong; check or remove these photos (or add "
+                                  "photos between them and their neighbours) and run again")
+    assert len(rep["registered"]) == 8
+    # conversions said once per kind with a count, and images/ holds upright 8-bit RGB copies
+    for what in ("1 grayscale L image(s) converted to RGB: 02.png", "1 RGBA image(s) converted to RGB (alpha "
+                 "dropped): 03.png", "1 16-bit image(s) converted to RGB: 04.png"):
+        assert err.count(what) == 1, err
+    for i in range(8):
+        with Image.open(tmp_path / "scene" / "images" / f"{i:02d}.png") as im:
+            assert im.mode == "RGB" and im.size == (96, 72) and im.getexif().get(0x0112, 1) == 1
     assert listing(tmp_path) == ["photos", "scene"]
     scene = read_scene(tmp_path / "scene")
     assert [f.name for f in scene.frames] == [f"{i:02d}.png" for i in range(8)]

@@ -170,3 +170,153 @@ def test_written_scene_holds_upright_rgb_copies(tmp_path):
     np.testing.assert_array_equal(np.asarray(Image.open(out / "images" / "4.png"))[..., 1], up["0.png"][..., 0])
     back = read_scene(out)
     assert all(back.load(i).shape == (H, W, 3) for i in range(5))
+
+
+# ---- the pose check: jumps between capture-order neighbours ----------------------------------------------
+
+from sparself.posecheck import ImageStats, camera_warnings, check_poses  # noqa: E402
+from sparself.sfm import exif_focal_px  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def orbit(n: int = 24, step_deg: float = 15.0, seed: int = 0) -> Scene:
+    """A hand-held orbit: cameras on a slightly wobbling circle looking at the origin, with jitter."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(n):
+        a = np.deg2rad(step_deg * i + rng.normal(0, 2))
+        c = np.array([3 * np.cos(a), 0.3 * np.sin(3 * a) + rng.normal(0, 0.05), 3 * np.sin(a)])
+        z = -c / np.linalg.norm(c)
+        x = np.cross([0.0, -1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        frames.append(Frame(f"{i:02d}.png", Pose.from_center(rotmat_to_quat(R), c), 1, float(i)))
+    return Scene({1: Camera.pinhole(W, H, 50.0)}, frames)
+
+
+def flipped(scene: Scene, idx: list[int], deg: float = 160.0, axis=(0.3, 1.0, 0.2)) -> Scene:
+    """The scene with cameras ``idx`` turned by ``deg`` about an axis through their own centres."""
+    import cv2
+
+    ax = np.asarray(axis, float) / np.linalg.norm(axis)
+    Rf = cv2.Rodrigues(ax * np.deg2rad(deg))[0]
+    frames = list(scene.frames)
+    for i in idx:
+        f = frames[i]
+        frames[i] = Frame(f.name, Pose.from_center(rotmat_to_quat(Rf @ f.pose.R), f.pose.center), 1, f.index)
+    return Scene(scene.cameras, frames)
+
+
+def test_clean_orbit_raises_nothing():
+    for step in (2.0, 15.0, 30.0):
+        c = check_poses(orbit(step_deg=step, n=int(360 / step) - 1))
+        assert c.suspects == [] and not c.skipped, (step, c)
+
+
+@pytest.mark.parametrize("step", [5.0, 15.0, 30.0])
+def test_one_flipped_camera_is_named_exactly(step):
+    s = flipped(orbit(n=min(24, int(360 / step) - 1), step_deg=step), [7])
+    c = check_poses(s)
+    assert c.names == ["07.png"], c
+    assert c.suspects[0].reasons[0].startswith("looks 1") and "deg away from 06.png" in c.suspects[0].reasons[0]
+    assert f"median step {c.median_rot_deg:.1f} deg" in c.suspects[0].reasons
+    assert c.summary().startswith("1 suspect photo(s), poses probably wrong: 07.png (looks 1")
+
+
+def test_flipped_run_and_first_camera_are_named_exactly():
+    assert check_poses(flipped(orbit(), [10, 11, 12])).names == ["10.png", "11.png", "12.png"]
+    assert check_poses(flipped(orbit(), [0])).names == ["00.png"]
+    assert check_poses(flipped(orbit(), [23], deg=150)).names == ["23.png"]
+
+
+def test_camera_moved_far_off_the_orbit_is_named():
+    s = orbit()
+    f = s.frames[5]
+    s.frames[5] = Frame(f.name, Pose.from_center(f.pose.qvec, -f.pose.center), 1, f.index)  # mirrored centre
+    c = check_poses(s)
+    assert c.names == ["05.png"], c
+
+
+def test_name_order_that_is_not_capture_order_uses_camera_positions():
+    s = orbit()
+    perm = np.random.default_rng(1).permutation(len(s))
+    shuffled = Scene(s.cameras, [Frame(f"{k:02d}.png", s.frames[i].pose, 1, float(k)) for k, i in enumerate(perm)])
+    c = check_poses(shuffled)
+    assert c.suspects == [] and "do not follow the capture order" in c.order and not c.skipped
+    # a flip is still found: it turns the view, not the centre the neighbours are taken by
+    assert check_poses(flipped(shuffled, [9])).names == ["09.png"]
+
+
+def test_photos_on_no_path_skip_the_jump_check():
+    """Cameras anywhere, looking anywhere: no order to check against, so nothing is named."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    s = orbit(n=12)
+    frames = [Frame(f.name, Pose.from_center(rotmat_to_quat(cv2.Rodrigues(rng.normal(size=3) * 2)[0]),
+                                             rng.normal(size=3) * 3), 1, f.index) for f in s.frames]
+    c = check_poses(Scene(s.cameras, frames))
+    assert c.suspects == [] and "jump check was skipped" in c.skipped, c
+
+
+def test_weak_photos_from_model_statistics():
+    s = orbit(n=10)
+    stats = [ImageStats(f.name, 500, 4.0, 0.6) for f in s.frames]
+    stats[3] = ImageStats("03.png", 40, 2.1, 0.7)      # its points are seen by it and one other photo
+    stats[6] = ImageStats("06.png", 400, 3.9, 4.5)     # fits badly
+    c = check_poses(s, stats)
+    assert c.names == ["03.png", "06.png"]
+    assert c.suspects[0].reasons == ["short tracks: its points are seen by 2.1 photos (median 4.0)"]
+    assert c.suspects[1].reasons == ["reprojection error 4.50 px (median 0.60)"]
+
+
+@pytest.mark.parametrize("scene", ["llff_bird", "llff_bird25", "middlebury_templeRing", "middlebury_templeSparseRing",
+                                   "middlebury_dinoSparseRing"])
+def test_published_poses_raise_no_false_alarm(scene):
+    from sparself.io import read_scene
+
+    src = DATA / scene.replace("25", "")
+    if not src.is_dir():
+        pytest.skip(f"{src} not available")
+    s = read_scene(src)
+    if scene.endswith("25"):
+        s = s.subset(list(range(0, len(s), 7))[:25])
+    c = check_poses(s)
+    assert c.suspects == [] and not c.skipped, c.summary()
+    # and the detector does see a flip in the same capture
+    assert check_poses(flipped(s, [len(s) // 2])).names == [s.frames[len(s) // 2].name]
+
+
+# ---- the camera ----------------------------------------------------------------------------------------
+
+def test_implausible_camera_warns_with_the_numbers():
+    # the issue's case: 8 small photos gave fx=2826, a 2.3 degree field of view (truly about 33)
+    (w,) = camera_warnings(Camera("SIMPLE_RADIAL", 113, 85, (2826.0, 56.5, 42.5, 0.0)))
+    assert "fx=2826 px for 113x85 photos is a 2.3 x 1.7 deg field of view" in w
+    assert camera_warnings(Camera.pinhole(1600, 1200, 1400.0)) == []           # 59 deg: a phone
+    assert "150" in " ".join(camera_warnings(Camera.pinhole(1600, 1200, 150.0))) or \
+        camera_warnings(Camera.pinhole(1600, 1200, 150.0))                      # 158 deg: fisheye-like
+    (w,) = camera_warnings(Camera.pinhole(1600, 1200, 3000.0), exif_focal_px=1300.0)
+    assert "fx=3000 px (29.9 deg) is far from the photos' EXIF focal length 1300 px (63.2 deg)" in w
+    assert camera_warnings(Camera.pinhole(1600, 1200, 1400.0), exif_focal_px=1300.0) == []
+
+
+def test_exif_focal_length_in_px(tmp_path):
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 26  # FocalLengthIn35mmFilm: a phone's main camera
+    Image.new("RGB", (400, 300)).save(tmp_path / "a.jpg", exif=exif)
+    Image.new("RGB", (400, 300)).save(tmp_path / "b.jpg")
+    f = exif_focal_px([tmp_path / "a.jpg", tmp_path / "b.jpg"], 400, 300)
+    assert f == pytest.approx(26 / np.hypot(36, 24) * 500)  # 300.4 px: a 67 deg horizontal field of view
+    assert exif_focal_px([tmp_path / "b.jpg"], 400, 300) is None
+
+
+def test_repair_outcome_is_one_plain_sentence():
+    from sparself.sfm import repair_outcome
+
+    assert repair_outcome(["07.png"], [], ["a (3 pairs dropped): 24 registered, 0 suspect(s)"]) == \
+        "tried a (3 pairs dropped): 24 registered, 0 suspect(s). repaired: 07.png now agree with their neighbours"
+    assert repair_outcome(["07.png", "08.png"], ["08.png"], ["a", "b"]).endswith(
+        "could not repair: 08.png still look wrong; check or remove these photos (or add photos between them and "
+        "their neighbours) and run again")

@@ -24,6 +24,8 @@ import numpy as np
 
 from .errors import InputError, RegistrationError
 from .geometry import align_similarity, rotation_angle_deg
+from .io.colmap import scene_from_reconstruction
+from .posecheck import ImageStats, PoseCheck, Suspect, camera_warnings, check_poses
 from .scene import (HEIF_EXTENSIONS, Scene, image_extensions, image_size_of, list_images, load_image,
                     needs_conversion, note_conversions, save_image)
 
@@ -81,6 +83,10 @@ class SfmReport:
     num_points: int
     mean_reprojection_error: float
     timings: dict[str, float] = field(default_factory=dict)
+    suspects: list[Suspect] = field(default_factory=list)  # registered, but the pose is probably wrong
+    pose_check: str = ""   # why the jump check was skipped, if it was
+    repair: str = ""       # what was tried on suspects, and how it ended
+    camera: list[str] = field(default_factory=list)  # implausible-camera warnings
 
     @property
     def num_registered(self) -> int:
@@ -90,6 +96,12 @@ class SfmReport:
         s = f"registered {self.num_registered} of {self.num_images} images"
         if self.unregistered:
             s += f"; not registered: {', '.join(self.unregistered)}"
+        if self.suspects:
+            s += "; " + PoseCheck(self.suspects).summary()
+        elif self.repair:
+            s += "; suspect poses repaired"
+        if self.repair:
+            s += f" [{self.repair}]"
         return s
 
 
@@ -205,17 +217,69 @@ def _options(cfg: SfmConfig):
     return ext, match, verify, mapper
 
 
+def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict[str, float]):
+    """Features, matching and incremental mapping in ``work``. -> (reconstructions, database, image folder)."""
+    import pycolmap
+
+    names = [p.name for p in paths]
+    ext, match, verify, _ = _options(cfg)
+    pycolmap.set_random_seed(cfg.seed)
+    db = work / "database.db"
+    colmap_images = _colmap_inputs(paths, work)
+    t0 = time.perf_counter()
+    log.info("sfm: extracting SIFT features from %d images%s", len(names),
+             f" (downscaled to {cfg.max_image_size} px)" if cfg.max_image_size > 0 else "")
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = cfg.camera_model
+    pycolmap.extract_features(
+        db, colmap_images, image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE,
+        reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+    timings["features"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    log.info("sfm: %s matching", cfg.matcher)
+    if cfg.matcher == "exhaustive":
+        pycolmap.match_exhaustive(db, matching_options=match, verification_options=verify,
+                                  device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = cfg.sequential_overlap
+        pycolmap.match_sequential(db, matching_options=match, pairing_options=pairing,
+                                  verification_options=verify, device=pycolmap.Device.cpu)
+    timings["matching"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    log.info("sfm: incremental mapping")
+    recs = _mapping(db, colmap_images, work / "sparse", cfg, reseed=False)
+    timings["mapping"] = time.perf_counter() - t0
+    return recs, db, colmap_images
+
+
+def _mapping(db: Path, images: Path, out: Path, cfg: SfmConfig, reseed: bool = True) -> dict:
+    import pycolmap
+
+    out.mkdir()
+    if reseed:  # a repair run starts from the same random state as the first mapping would from scratch
+        pycolmap.set_random_seed(cfg.seed)
+    return pycolmap.incremental_mapping(db, images, out, _options(cfg)[3])
+
+
+def _best(recs: dict):
+    return max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D())) if recs else None
+
+
 def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
                   names: Sequence[str] | None = None) -> tuple[Scene, SfmReport]:
-    """Recover intrinsics and poses of the photos in ``image_folder`` (all images, or ``names``).
+    """Recover intrinsics and poses of the photos in ``image_folder`` (all images, or ``names``), check them
+    (:mod:`sparself.posecheck`: pose jumps between capture-order neighbours, weak photos, an implausible
+    camera) and try to repair suspect poses (:func:`_repair`).
 
     Runs in a temporary folder (removed afterwards); the input folder is only read.
     -> (scene of the registered images: frames sorted by name, paths into ``image_folder``, sparse points;
         report). Raises InputError for bad photos, RegistrationError if fewer than 3 are registered.
     """
     import pycolmap
-
-    from .io.colmap import scene_from_reconstruction
 
     cfg = cfg or SfmConfig()
     if cfg.matcher not in ("exhaustive", "sequential"):
@@ -228,63 +292,152 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
                     "much faster for long ordered captures", len(names), len(names) * (len(names) - 1) // 2)
     if cfg.deterministic:
         cfg = replace(cfg, num_threads=1)
-    ext, match, verify, mapper = _options(cfg)
     timings: dict[str, float] = {}
-    pycolmap.set_random_seed(cfg.seed)
     work = Path(tempfile.mkdtemp(prefix="sparself-sfm-"))
     try:
-        db = work / "database.db"
-        colmap_images = _colmap_inputs(paths, work)
         with _quiet_colmap(cfg.debug):
+            recs, db, colmap_images = _colmap_run(paths, work, cfg, timings)
+            best = _best(recs)
+            if best is None:
+                raise RegistrationError(f"{folder}: COLMAP could not register any of the {len(names)} images "
+                                        "(too little overlap or texture between the photos)")
             t0 = time.perf_counter()
-            log.info("sfm: extracting SIFT features from %d images%s", len(names),
-                     f" (downscaled to {cfg.max_image_size} px)" if cfg.max_image_size > 0 else "")
-            reader = pycolmap.ImageReaderOptions()
-            reader.camera_model = cfg.camera_model
-            pycolmap.extract_features(
-                db, colmap_images, image_names=names,
-                camera_mode=pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE,
-                reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
-            timings["features"] = time.perf_counter() - t0
-
-            t0 = time.perf_counter()
-            log.info("sfm: %s matching", cfg.matcher)
-            if cfg.matcher == "exhaustive":
-                pycolmap.match_exhaustive(db, matching_options=match, verification_options=verify,
-                                          device=pycolmap.Device.cpu)
-            else:
-                pairing = pycolmap.SequentialPairingOptions()
-                pairing.overlap = cfg.sequential_overlap
-                pycolmap.match_sequential(db, matching_options=match, pairing_options=pairing,
-                                          verification_options=verify, device=pycolmap.Device.cpu)
-            timings["matching"] = time.perf_counter() - t0
-
-            t0 = time.perf_counter()
-            log.info("sfm: incremental mapping")
-            (work / "sparse").mkdir()
-            recs = pycolmap.incremental_mapping(db, colmap_images, work / "sparse", mapper)
-            timings["mapping"] = time.perf_counter() - t0
+            check = check_poses(_posed(best), image_stats(best))
+            repair = ""
+            if check.suspects:
+                best, check, repair = _repair(best, check, db, colmap_images, work, cfg, names)
+            timings["check"] = time.perf_counter() - t0
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    if not recs:
-        raise RegistrationError(f"{folder}: COLMAP could not register any of the {len(names)} images "
-                                "(too little overlap or texture between the photos)")
-    best = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
     scene = scene_from_reconstruction(best, folder, source=folder)
+    return scene, _report(scene, names, recs, best, check, repair, timings, paths)
+
+
+def _posed(rec) -> Scene:
+    return scene_from_reconstruction(rec, None)
+
+
+def _report(scene: Scene, names: list[str], recs: dict, best, check: PoseCheck, repair: str,
+            timings: dict[str, float], paths: Sequence[Path]) -> SfmReport:
+    """The report, its log lines (warnings, so that -q and densify show them), the final checks."""
+    folder = paths[0].parent
     registered = [f.name for f in scene.frames]
     unregistered = [n for n in names if n not in set(registered)]
+    cam_notes = [w for cid, cam in scene.cameras.items()
+                 for w in camera_warnings(cam, exif_focal_px(paths, cam.width, cam.height))]
     report = SfmReport(num_images=len(names), registered=registered, unregistered=unregistered,
                        num_models=len(recs), num_points=best.num_points3D(),
-                       mean_reprojection_error=float(best.compute_mean_reprojection_error()), timings=timings)
+                       mean_reprojection_error=float(best.compute_mean_reprojection_error()), timings=timings,
+                       suspects=check.suspects, pose_check=check.skipped, repair=repair, camera=cam_notes)
     scene.meta.update(format="sfm", unregistered=unregistered, sfm_report=report)
-    # a warning when photos were dropped, so that it is seen even with -q (and by densify, which goes on)
-    log.log(logging.WARNING if unregistered else logging.INFO, "sfm: %s (%d model(s); %.1f s)", report.summary(),
-            len(recs), sum(timings.values()))
+    log.log(logging.WARNING if unregistered or check.suspects else logging.INFO, "sfm: %s (%d model(s); %.1f s)",
+            report.summary(), len(recs), sum(timings.values()))
+    for w in cam_notes:
+        log.warning("sfm: %s", w)
     if len(registered) < 3:
         raise RegistrationError(f"{folder}: only {len(registered)} of {len(names)} images could be registered "
                                 f"({', '.join(registered) or 'none'}); need at least 3. Not registered: "
                                 f"{', '.join(unregistered)}")
-    return scene, report
+    return report
+
+
+def image_stats(rec) -> list[ImageStats]:
+    """Per registered image of a pycolmap reconstruction: 3D points seen, their mean track length, and the
+    mean reprojection error of its own observations (px)."""
+    out = []
+    for img in sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name):
+        obs = img.get_observation_points2D()
+        if not len(obs):
+            out.append(ImageStats(img.name, 0, 0.0, float("inf")))
+            continue
+        pts = [rec.points3D[p.point3D_id] for p in obs]
+        X = np.array([p.xyz for p in pts])
+        xy = np.array([p.xy for p in obs])
+        cam_pts = X @ np.asarray(img.cam_from_world().rotation.matrix()).T + np.asarray(img.cam_from_world().translation)
+        proj = np.asarray(img.camera.img_from_cam(cam_pts, check_cheirality=False))
+        err = np.linalg.norm(proj - xy, axis=1)
+        out.append(ImageStats(img.name, len(pts), float(np.mean([p.track.length() for p in pts])),
+                              float(np.mean(err))))
+    return out
+
+
+def _restricted_db(db: Path, dst: Path, keep) -> int:
+    """A copy of the database without the verified pairs that ``keep(a, b)`` (image names) refuses.
+    -> number of pairs removed."""
+    import pycolmap
+
+    shutil.copyfile(db, dst)
+    d = pycolmap.Database.open(dst)
+    try:
+        names = {im.image_id: im.name for im in d.read_all_images()}
+        removed = 0
+        for pid in d.read_two_view_geometries()[0]:
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            if not keep(names[a], names[b]):
+                d.delete_two_view_geometry(a, b)
+                d.delete_matches(a, b)
+                removed += 1
+    finally:
+        d.close()
+    return removed
+
+
+REPAIR_WINDOW = 3  # capture-order neighbours (either side) a photo keeps its matches with in a repair
+
+
+def _repair(best, check: PoseCheck, db: Path, images: Path, work: Path, cfg: SfmConfig, names: list[str]):
+    """Try to re-register suspect photos: (1) the suspects' matches restricted to their capture-order
+    neighbours (wrong matches to far photos of a symmetric object or repetitive floor pull them to mirrored
+    poses), (2) every photo's matches restricted so (a sequential order prior). Each is a new incremental
+    mapping on a copy of the database, checked again; a result is taken only if it registers as many photos
+    and leaves fewer suspects. -> (reconstruction, check, what was tried and how it ended)."""
+    pos = {n: i for i, n in enumerate(names)}
+    sus = set(check.names)
+    near = lambda a, b: abs(pos[a] - pos[b]) <= REPAIR_WINDOW  # noqa: E731
+    tries = [("matches of the suspects restricted to their capture-order neighbours",
+              lambda a, b: (a not in sus and b not in sus) or near(a, b)),
+             ("all matches restricted to capture-order neighbours (a sequential order prior)", near)]
+    before, done = check.names, []
+    for k, (what, keep) in enumerate(tries):
+        removed = _restricted_db(db, work / f"repair{k}.db", keep)
+        cand = _best(_mapping(work / f"repair{k}.db", images, work / f"repair{k}", cfg))
+        c = check_poses(_posed(cand), image_stats(cand)) if cand is not None else None
+        done.append(f"{what} ({removed} pairs dropped): " + (
+            "no model" if c is None else f"{cand.num_reg_images()} registered, {len(c.suspects)} suspect(s)"))
+        if c is not None and cand.num_reg_images() >= best.num_reg_images() and len(c.suspects) < len(check.suspects):
+            best, check = cand, c
+        if not check.suspects:
+            break
+    return best, check, repair_outcome(before, check.names, done)
+
+
+def repair_outcome(before: list[str], after: list[str], tried: list[str]) -> str:
+    """One plain sentence: what was tried on the suspects and whether it worked."""
+    if after:
+        end = (f"could not repair: {', '.join(after)} still look wrong; check or remove these photos (or add "
+               "photos between them and their neighbours) and run again")
+    else:
+        end = f"repaired: {', '.join(before)} now agree with their neighbours"
+    return "tried " + "; ".join(tried) + f". {end}"
+
+
+def exif_focal_px(paths: Sequence[Path], width: int, height: int) -> float | None:
+    """The focal length in px that the photos' EXIF gives (median over photos with a 35 mm equivalent
+    focal length: f_px = f_35mm / 43.27 mm x image diagonal in px), or None when none has one."""
+    from PIL import ExifTags, Image
+
+    vals = []
+    for p in paths:
+        try:
+            with Image.open(p) as im:
+                exif = im.getexif()
+                f35 = exif.get_ifd(ExifTags.IFD.Exif).get(ExifTags.Base.FocalLengthIn35mmFilm) or \
+                    exif.get(ExifTags.Base.FocalLengthIn35mmFilm)
+        except (OSError, SyntaxError, ValueError):
+            continue
+        if f35:
+            vals.append(float(f35) / float(np.hypot(36.0, 24.0)) * float(np.hypot(width, height)))
+    return float(np.median(vals)) if vals else None
 
 
 # ---- comparison with reference poses ------------------------------------------------------------
