@@ -279,8 +279,6 @@ def recover_poses(image_folder: Path, cfg: SfmConfig | None = None, *,
     -> (scene of the registered images: frames sorted by name, paths into ``image_folder``, sparse points;
         report). Raises InputError for bad photos, RegistrationError if fewer than 3 are registered.
     """
-    import pycolmap
-
     cfg = cfg or SfmConfig()
     if cfg.matcher not in ("exhaustive", "sequential"):
         raise InputError(f"unknown matcher {cfg.matcher!r} (use 'exhaustive' or 'sequential')")
