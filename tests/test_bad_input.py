@@ -373,6 +373,8 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
         return c
 
     monkeypatch.setattr(sfm, "check_poses", check)
+    # and photos whose EXIF says a 3x longer lens than these views were rendered with (f = 80 px)
+    monkeypatch.setattr(sfm, "exif_focal_px", lambda paths, w, h: 240.0)
     os.chmod(d, 0o555)  # the input folder is only read
     try:
         code, out, err = run(capsys, "poses", d, "--out", tmp_path / "scene", "-q")
@@ -397,6 +399,8 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     assert rep["repair"].endswith("could not repair: 03.png still look wrong; check or remove these photos (or add "
                                   "photos between them and their neighbours) and run again")
     assert len(rep["registered"]) == 8
+    (cam_line,) = rep["camera"]
+    assert "is far from the photos' EXIF focal length 240 px (22.6 deg)" in cam_line and f"WARNING: sfm: {cam_line}" in err
     # conversions said once per kind with a count, and images/ holds upright 8-bit RGB copies
     for what in ("1 grayscale L image(s) converted to RGB: 02.png", "1 RGBA image(s) converted to RGB (alpha "
                  "dropped): 03.png", "1 16-bit image(s) converted to RGB: 04.png"):

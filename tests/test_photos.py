@@ -310,6 +310,14 @@ def test_exif_focal_length_in_px(tmp_path):
     f = exif_focal_px([tmp_path / "a.jpg", tmp_path / "b.jpg"], 400, 300)
     assert f == pytest.approx(26 / np.hypot(36, 24) * 500)  # 300.4 px: a 67 deg horizontal field of view
     assert exif_focal_px([tmp_path / "b.jpg"], 400, 300) is None
+    # a camera without a 35 mm equivalent: 18 mm at 4000 px per 25.4 mm (inch) of sensor, written at 6000 px
+    # wide; the photo was resized to 1500x1000 since: 18 * 4000 / 25.4 * 1500 / 6000 = 708.7 px
+    exif = Image.Exif()
+    ifd = exif.get_ifd(0x8769)
+    ifd[0x920A], ifd[0xA20E], ifd[0xA210], ifd[0xA002], ifd[0xA003] = 18.0, 4000.0, 2, 6000, 4000
+    Image.new("RGB", (1500, 1000)).save(tmp_path / "c.jpg", exif=exif)
+    assert exif_focal_px([tmp_path / "c.jpg"], 1500, 1000) == pytest.approx(18 * 4000 / 25.4 / 4)
+    assert exif_focal_px([tmp_path / "c.jpg"], 1000, 1500) == pytest.approx(18 * 4000 / 25.4 / 4)  # upright
 
 
 def test_repair_outcome_is_one_plain_sentence():

@@ -419,22 +419,41 @@ def repair_outcome(before: list[str], after: list[str], tried: list[str]) -> str
     return "tried " + "; ".join(tried) + f". {end}"
 
 
+def _exif_focal_one(exif, width: int, height: int) -> float | None:
+    """Focal length in px from one photo's EXIF: the 35 mm equivalent (f_px = f_35 / 43.27 mm x image
+    diagonal), else the focal length in mm times the focal-plane resolution, scaled from the size the
+    camera wrote (ExifImageWidth/Height) to the photo's size."""
+    from PIL import ExifTags
+
+    sub = exif.get_ifd(ExifTags.IFD.Exif)
+    tag = lambda t: sub.get(t, exif.get(t))  # noqa: E731  (some writers put them in the main IFD)
+    f35 = tag(ExifTags.Base.FocalLengthIn35mmFilm)
+    if f35:
+        return float(f35) / float(np.hypot(36.0, 24.0)) * float(np.hypot(width, height))
+    f_mm, res, unit = tag(ExifTags.Base.FocalLength), tag(ExifTags.Base.FocalPlaneXResolution), \
+        tag(ExifTags.Base.FocalPlaneResolutionUnit)
+    mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}.get(int(unit or 2))
+    exif_long = max(float(tag(ExifTags.Base.ExifImageWidth) or 0), float(tag(ExifTags.Base.ExifImageHeight) or 0))
+    if not (f_mm and res and mm_per_unit and exif_long):
+        return None
+    # long side to long side: the photo may have been resized or turned upright since the camera wrote it
+    return float(f_mm) * float(res) / mm_per_unit * max(width, height) / exif_long
+
+
 def exif_focal_px(paths: Sequence[Path], width: int, height: int) -> float | None:
-    """The focal length in px that the photos' EXIF gives (median over photos with a 35 mm equivalent
-    focal length: f_px = f_35mm / 43.27 mm x image diagonal in px), or None when none has one."""
-    from PIL import ExifTags, Image
+    """The focal length in px that the photos' EXIF gives at (width, height) (median over the photos that
+    have one; :func:`_exif_focal_one`), or None when none has one."""
+    from PIL import Image
 
     vals = []
     for p in paths:
         try:
             with Image.open(p) as im:
-                exif = im.getexif()
-                f35 = exif.get_ifd(ExifTags.IFD.Exif).get(ExifTags.Base.FocalLengthIn35mmFilm) or \
-                    exif.get(ExifTags.Base.FocalLengthIn35mmFilm)
-        except (OSError, SyntaxError, ValueError):
+                f = _exif_focal_one(im.getexif(), width, height)
+        except (OSError, SyntaxError, ValueError, ZeroDivisionError):
             continue
-        if f35:
-            vals.append(float(f35) / float(np.hypot(36.0, 24.0)) * float(np.hypot(width, height)))
+        if f and np.isfinite(f) and f > 0:
+            vals.append(f)
     return float(np.median(vals)) if vals else None
 
 
