@@ -328,3 +328,16 @@ def test_repair_outcome_is_one_plain_sentence():
     assert repair_outcome(["07.png", "08.png"], ["08.png"], ["a", "b"]).endswith(
         "could not repair: 08.png still look wrong; check or remove these photos (or add photos between them and "
         "their neighbours) and run again")
+
+
+def test_a_break_between_two_large_parts_is_reported_not_blamed():
+    """Half the orbit turned: neither half is more right than the other, so no photo is named, but the
+    summary (and sfm_report.json through SfmReport) says where the capture breaks."""
+    from sparself.sfm import SfmReport
+
+    c = check_poses(flipped(orbit(), list(range(12, 24))))
+    assert c.suspects == [] and len(c.breaks) == 1 and c.breaks[0].startswith("11.png -> 12.png: views 1"), c
+    rep = SfmReport(24, [f"{i:02d}.png" for i in range(24)], [], 1, 100, 0.5, breaks=c.breaks)
+    assert rep.summary().startswith("registered 24 of 24 images; pose check: no suspect photos; the capture "
+                                    "breaks at 11.png -> 12.png: views 1")
+    assert rep.summary().endswith("check the photos there")

@@ -84,7 +84,8 @@ class SfmReport:
     mean_reprojection_error: float
     timings: dict[str, float] = field(default_factory=dict)
     suspects: list[Suspect] = field(default_factory=list)  # registered, but the pose is probably wrong
-    pose_check: str = ""   # why the jump check was skipped, if it was
+    pose_check: str = ""   # why the jump check was skipped, if it was; how neighbours were taken
+    breaks: list[str] = field(default_factory=list)  # jumps between two large parts that each agree
     repair: str = ""       # what was tried on suspects, and how it ended
     camera: list[str] = field(default_factory=list)  # implausible-camera warnings
 
@@ -96,8 +97,8 @@ class SfmReport:
         s = f"registered {self.num_registered} of {self.num_images} images"
         if self.unregistered:
             s += f"; not registered: {', '.join(self.unregistered)}"
-        if self.suspects:
-            s += "; " + PoseCheck(self.suspects).summary()
+        if self.suspects or self.breaks:
+            s += "; " + PoseCheck(self.suspects, breaks=self.breaks).summary()
         elif self.repair:
             s += "; suspect poses repaired"
         if self.repair:
@@ -321,14 +322,16 @@ def _report(scene: Scene, names: list[str], recs: dict, best, check: PoseCheck, 
     folder = paths[0].parent
     registered = [f.name for f in scene.frames]
     unregistered = [n for n in names if n not in set(registered)]
-    cam_notes = [w for cid, cam in scene.cameras.items()
+    cam_notes = [w for cam in scene.cameras.values()
                  for w in camera_warnings(cam, exif_focal_px(paths, cam.width, cam.height))]
     report = SfmReport(num_images=len(names), registered=registered, unregistered=unregistered,
                        num_models=len(recs), num_points=best.num_points3D(),
                        mean_reprojection_error=float(best.compute_mean_reprojection_error()), timings=timings,
-                       suspects=check.suspects, pose_check=check.skipped, repair=repair, camera=cam_notes)
+                       suspects=check.suspects, pose_check="; ".join(x for x in (check.skipped, check.order) if x),
+                       breaks=check.breaks, repair=repair, camera=cam_notes)
     scene.meta.update(format="sfm", unregistered=unregistered, sfm_report=report)
-    log.log(logging.WARNING if unregistered or check.suspects else logging.INFO, "sfm: %s (%d model(s); %.1f s)",
+    log.log(logging.WARNING if unregistered or check.suspects or check.breaks else logging.INFO,
+            "sfm: %s (%d model(s); %.1f s)",
             report.summary(), len(recs), sum(timings.values()))
     for w in cam_notes:
         log.warning("sfm: %s", w)
