@@ -172,11 +172,11 @@ def test_no_context_ablation_zeroes_the_decoder_input():
 
 def test_decoder_shapes_and_initial_sweep_output_is_a_blend_of_sources():
     fc = FCDecoder((5, 7))
-    assert fc(torch.randn(3, 512)).shape == (3, 3, 5, 7)
+    assert fc.decode_context(torch.randn(3, 512)).shape == (3, 3, 5, 7)
     dec = SweepDecoder(channels=4)
     x = torch.rand(2, 8, 6, 10, 12)
     x[:, 6:] = 1.0  # both sources valid everywhere
-    out = dec(x, torch.randn(2, 512))
+    out = dec.decode_volume(x, torch.randn(2, 512))
     assert out.shape == (2, 3, 10, 12)
     # untrained residual is zero, so each output pixel is a convex combination of source samples
     lo = torch.minimum(x[:, 0:3], x[:, 3:6]).amin(2)
@@ -216,13 +216,13 @@ def test_sweep_gate_interpolates_between_the_sweep_and_the_plain_blend():
     plain = 0.25 * x[:, 0:3, -1] + 0.75 * x[:, 3:6, -1]
     ctx = torch.randn(2, 512)
     to_blend = SweepDecoder(4, gate_init=-40.0)
-    out, gate = to_blend(x, ctx, return_gate=True)
+    out, gate = to_blend.decode_volume(x, ctx, return_gate=True)
     assert torch.all(gate < 1e-6) and torch.allclose(out, plain, atol=1e-5)
     no_gate = SweepDecoder(4, gate=False)
-    sweep_only = no_gate(x, ctx)
+    sweep_only = no_gate.decode_volume(x, ctx)
     half = SweepDecoder(4, gate_init=0.0)
     half.load_state_dict({**no_gate.state_dict(), **{k: v for k, v in half.state_dict().items() if k.startswith("gate")}})
-    assert torch.allclose(half(x, ctx), 0.5 * sweep_only + 0.5 * plain, atol=1e-5)
+    assert torch.allclose(half.decode_volume(x, ctx), 0.5 * sweep_only + 0.5 * plain, atol=1e-5)
 
 
 def test_synthesis_loss_is_mse_plus_weighted_ssim_dissimilarity():

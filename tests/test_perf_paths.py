@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 import torch
 
-import sparself.synthesize as synth_mod
 from sparself.errors import ConfigError
 from sparself.geometry import Pose
 from sparself.scene import Frame
@@ -31,14 +30,14 @@ def run(small_run):
 def test_batched_synthesis_equals_one_target_at_a_time(run, monkeypatch):
     scene = plane_scene()
     batched = synthesize(run, scene, _targets())
-    monkeypatch.setattr(synth_mod, "TILE", 8)  # images now count as "large": one target per decoder call
+    dec = run.model.decoder
+    monkeypatch.setattr(dec, "tile", 8)  # images now count as "large": one target per decoder call, in tiles
     single = synthesize(run, scene, _targets())
     assert batched.shape == (5, H, W, 3)
     assert np.allclose(batched, single, atol=1e-5)
     # and a tiny voxel budget (one target per chunk) changes nothing either
-    monkeypatch.setattr(synth_mod, "TILE", 256)
-    orig = synth_mod._decode_batched
-    monkeypatch.setattr(synth_mod, "_decode_batched", lambda *a, **k: orig(*a, max_voxels=1))
+    monkeypatch.setattr(dec, "tile", 256)
+    monkeypatch.setattr(dec, "max_voxels", 1)
     assert np.allclose(synthesize(run, scene, _targets()), batched, atol=1e-5)
 
 

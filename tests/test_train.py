@@ -48,7 +48,7 @@ def test_holdout_frames_are_never_opened(tmp_path, tiny_cfg):
     broken.write_bytes(b"")  # opening it would raise InputError
     scene.frames[4] = dataclasses.replace(scene.frames[4], image=None, path=broken)
     run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, holdout=(4,)), progress=False)
-    assert "f04.png" not in run.meta["sources"] and len(run.meta["sources"]) == 6
+    assert "f04.png" not in run.meta.sources and len(run.meta.sources) == 6
     with pytest.raises(ConfigError, match="outside"):
         train(scene, tmp_path / "run2", tiny_cfg(epochs=1, holdout=(9,)), progress=False)
 
@@ -120,7 +120,7 @@ def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path, ti
 def test_densify_end_to_end(tmp_path, tiny_cfg):
     from sparself import io as sio
     from sparself.plan import PlanConfig
-    from sparself.synthesize import DensifyConfig, densify
+    from sparself.pipeline import DensifyConfig, densify
 
     scene = plane_scene(7)
     src = tmp_path / "capture"
@@ -186,7 +186,7 @@ def test_sweep_planes_surround_the_object_of_a_ring_capture():
 def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path, tiny_cfg):
     """fallback="flow": the gate's alternative is the two sources aligned by optical flow; a midpoint of
     the textured plane comes out close to the truth, and the flow-aligned plane is what the decoder sees."""
-    from sparself.baselines import flow_pair
+    from sparself.warp import flow_pair
     from sparself.model import sweep_volume
 
     scene = plane_scene()

@@ -27,9 +27,13 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import torch
+import torch.nn.functional as F
 
-from .geometry import rotation_angle_deg
+from .geometry import inverse_depth_planes, rotation_angle_deg
+from .model.query import bracket
 from .scene import Frame, Scene, resize_image
+from .warp import flow_pair, plane_sweep
 
 log = logging.getLogger(__name__)
 
@@ -72,14 +76,15 @@ def bracketing(scene: Scene, target: Frame, rot_weight: float = 1.0) -> tuple[in
     if n == 1:
         return 0, 0, 0.0
     x = float(target.index)
-    if _indices_usable(scene) and np.isfinite(x):
-        idx = np.array([f.index for f in scene.frames], dtype=np.float64)
-        below, above = np.where(idx <= x)[0], np.where(idx >= x)[0]
-        if len(below) and len(above):
-            a = int(below[np.argmax(idx[below])])
-            b = int(above[np.argmin(idx[above])])
-            t = 0.0 if a == b else (x - idx[a]) / (idx[b] - idx[a])
-            return a, b, float(t)
+    idx = np.array([f.index for f in scene.frames], dtype=np.float64)
+    if _indices_usable(scene) and np.isfinite(x) and idx.min() <= x <= idx.max():
+        hit = np.flatnonzero(idx == x)
+        if len(hit):  # the target sits on a source
+            return int(hit[0]), int(hit[0]), 0.0
+        order = np.argsort(idx, kind="stable")
+        i, j = bracket(idx[order], x)  # the same rule as the network's source sets
+        a, b = int(order[i]), int(order[j])
+        return a, b, float((x - idx[a]) / (idx[b] - idx[a]))
     d = pose_distance(scene, target.pose, rot_weight)
     a, b = (int(i) for i in np.argsort(d, kind="stable")[:2])
     t = float(d[a] / (d[a] + d[b])) if d[a] + d[b] > 0 else 0.0
@@ -120,31 +125,12 @@ def blend(scene: Scene, targets: list[Frame], rot_weight: float = 1.0, **_) -> n
     return np.clip(np.stack(out), 0.0, 1.0).astype(np.float32)
 
 
-def _dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Dense flow from a to b (a(x) ~ b(x + F(x))), DIS 'medium' preset on 8-bit gray. -> (H, W, 2)."""
-    import cv2
-
-    ga = cv2.cvtColor((a * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
-    gb = cv2.cvtColor((b * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    return dis.calc(ga, gb, None)
-
-
-def _backward_warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """out(x) = img(x + flow(x)), bilinear, border replicated. img (H, W, 3), flow (H, W, 2)."""
-    import cv2
-
-    h, w = flow.shape[:2]
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-
 def flow(scene: Scene, targets: list[Frame], rot_weight: float = 1.0, **_) -> np.ndarray:
     """Optical-flow interpolation between the bracketing sources. -> (T, H, W, 3).
 
     With F01, F10 the flows between the neighbours, the flows from the intermediate frame are
     approximated as F_t0 = -(1-t) t F01 + t^2 F10 and F_t1 = (1-t)^2 F01 - t (1-t) F10 (Jiang et al.,
-    Super SloMo, 2018); the result is (1-t) I0(x + F_t0) + t I1(x + F_t1).
+    Super SloMo, 2018; :func:`sparself.warp.flow_pair`); the result is (1-t) I0(x + F_t0) + t I1(x + F_t1).
     """
     out = []
     for tg in targets:
@@ -157,15 +143,6 @@ def flow(scene: Scene, targets: list[Frame], rot_weight: float = 1.0, **_) -> np
         w0, w1 = flow_pair(i0, i1, t)
         out.append((1 - t) * w0 + t * w1)
     return np.clip(np.stack(out), 0.0, 1.0).astype(np.float32)
-
-
-def flow_pair(i0: np.ndarray, i1: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """Both images warped by optical flow to the intermediate time t (see :func:`flow`): I0(x + F_t0) and
-    I1(x + F_t1). i0, i1: (H, W, 3) float32 in [0, 1]; t in [0, 1] (beyond it extrapolates). -> two (H, W, 3)."""
-    f01, f10 = _dis_flow(i0, i1), _dis_flow(i1, i0)
-    ft0 = -(1 - t) * t * f01 + t * t * f10
-    ft1 = (1 - t) ** 2 * f01 - t * (1 - t) * f10
-    return _backward_warp(i0, ft0.astype(np.float32)), _backward_warp(i1, ft1.astype(np.float32))
 
 
 @dataclass
@@ -202,12 +179,6 @@ def planesweep(scene: Scene, targets: list[Frame], **cfg) -> np.ndarray:
     cfg: fields of :class:`PlaneSweepConfig`. Pixels where no plane is seen by two sources take the
     weighted colour of whatever source sees them (else black).
     """
-    import torch
-    import torch.nn.functional as F
-
-    from .geometry import inverse_depth_planes
-    from .warp import plane_sweep
-
     c = PlaneSweepConfig(**{k: v for k, v in cfg.items() if k in PlaneSweepConfig.__dataclass_fields__})
     near, far = scene.depth_bounds()
     depths = inverse_depth_planes(near, far, c.num_planes)

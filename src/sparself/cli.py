@@ -348,7 +348,7 @@ def _add_densify(sub) -> None:
 
 
 def _run_densify(args) -> int:
-    from .synthesize import DensifyConfig, densify
+    from .pipeline import DensifyConfig, densify
 
     densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=_plan_config(args),
                                                  out_size=args.out_size, overwrite=args.overwrite))

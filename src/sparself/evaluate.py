@@ -43,8 +43,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .errors import ConfigError, InputError, SparselfError
+from .recon import get_reconstructor
 from .report import safe_name as _safe
-from .scene import Frame, Scene, load_image, save_image
+from .scene import Frame, Scene, load_image, preloaded, save_image
 
 log = logging.getLogger(__name__)
 
@@ -281,26 +282,12 @@ def _baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
 
 
 def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
-    """fit(scene) -> renderer for a reconstructor name, with the evaluation's settings applied."""
-    if name == "nerf":
-        from .recon import nerf
-
-        return lambda sc: nerf.fit(sc, steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress)
-    if name == "gsplat":
-        from .recon import gsplat
-
-        return lambda sc: gsplat.fit(sc, seed=cfg.recon_seed, progress=cfg.progress)
-    try:
-        from .recon import RECONSTRUCTORS
-    except ImportError:
-        RECONSTRUCTORS = {}
-    if name in RECONSTRUCTORS:
-        return lambda sc: RECONSTRUCTORS[name](sc)
-    if name == "mpi":
-        from .recon import mpi
-
-        return lambda sc: mpi.fit(sc)
-    raise ConfigError(f"unknown reconstructor {name!r}; known: mpi, nerf, gsplat")
+    """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
+    the evaluation's settings applied."""
+    fit = get_reconstructor(name)
+    kw = {"nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
+          "gsplat": dict(seed=cfg.recon_seed, progress=cfg.progress)}.get(name, {})
+    return lambda sc: fit(sc, **kw)
 
 
 # ---- one scene -------------------------------------------------------------------------------------
@@ -310,12 +297,6 @@ def _with_images(scene: Scene, extra: list[Frame], images) -> Scene:
     from .synthesize import densify_scene
 
     return densify_scene(scene, list(extra), np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:]))
-
-
-def _preload(scene: Scene) -> Scene:
-    """Decode the (input) images once at the scene's size, so every consumer sees the same pixels."""
-    frames = [replace(f, image=scene.load(i)) for i, f in enumerate(scene.frames)]
-    return replace(scene, frames=frames)
 
 
 def _plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
@@ -396,7 +377,7 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
         "inputs": [full.frames[i].name for i in split.inputs], "inputs_index": split.inputs,
         "image_size": list(full.image_size(0)),
     }
-    inputs = _preload(full.subset(split.inputs))
+    inputs = preloaded(full.subset(split.inputs))
     planned, plan_info = _plan(inputs, split, cfg, full)
     res["protocol"]["planned"] = plan_info
     mid_truth = {k: rec["truth"] for k, rec in enumerate(plan_info) if rec["truth"] is not None}

@@ -492,3 +492,9 @@ def one_size(scene: Scene) -> Scene:
                 ", ".join(f"{a}x{b}" for a, b in sorted(sizes)), w, h)
     return replace(scene, cameras={cid: c if (c.width, c.height) == (w, h) else c.resized(w, h)
                                    for cid, c in scene.cameras.items()})
+
+
+def preloaded(scene: Scene) -> Scene:
+    """The scene with every frame's image decoded at its camera's size and held in memory (so a resized
+    scene writes resized images, and every consumer sees the same pixels)."""
+    return replace(scene, frames=[replace(f, image=scene.load(i)) for i, f in enumerate(scene.frames)])

@@ -24,20 +24,24 @@ import csv
 import dataclasses
 import json
 import logging
+import os
 import random
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+from tqdm.auto import tqdm
 
+from . import io as sio
 from .errors import ConfigError, InputError
 from .geometry import inverse_depth_planes, nearest_point_to_axes
-from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights, sweep_volume
+from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights
 from .model.decoders import DECODERS, synthesis_loss
+from .model.query import Queries, Sources, flow_aligned, leave_one_out, render
 from .outputs import atomic_file, check_output_dir
 from .scene import Scene, one_size
 
@@ -159,72 +163,18 @@ def resolve_device(name: str) -> torch.device:
     return torch.device("cpu")
 
 
+
+def backbone_side(cfg: TrainConfig, device: torch.device) -> int:
+    """The backbone's input side: ``cfg.backbone_size``, or 224 (the paper's) on CUDA and 64 on CPU."""
+    return cfg.backbone_size or (224 if device.type == "cuda" else 64)
+
+
+def finetunes_backbone(cfg: TrainConfig, device: torch.device) -> bool:
+    """Whether the backbone trains: ``cfg.finetune_backbone``, or yes on CUDA and no (frozen) on CPU."""
+    return cfg.finetune_backbone if cfg.finetune_backbone is not None else device.type == "cuda"
+
+
 # ---- scene -> tensors ----------------------------------------------------------------------------
-
-def index_positions(src_index: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """Sequence positions (0..S-1 for the sorted sources) of frame indices; fractional in between,
-    extrapolated linearly beyond the ends with the end spacing. src_index: (S,) ascending."""
-    src_index = np.asarray(src_index, np.float64)
-    index = np.atleast_1d(np.asarray(index, np.float64))
-    s = len(src_index)
-    if s == 1:
-        return index - src_index[0]
-    pos = np.interp(index, src_index, np.arange(s, dtype=np.float64))
-    lo, hi = index < src_index[0], index > src_index[-1]
-    pos[lo] = (index[lo] - src_index[0]) / max(src_index[1] - src_index[0], 1e-9)
-    pos[hi] = s - 1 + (index[hi] - src_index[-1]) / max(src_index[-1] - src_index[-2], 1e-9)
-    return pos
-
-
-def bracket(src_pos: np.ndarray, q: float, exclude: int = -1) -> tuple[int, int]:
-    """The two sources around position q (the previous and the next), or the two nearest on one side
-    beyond the ends. src_pos: (S,) ascending; exclude: a source that may not be used (the target)."""
-    ids = [i for i in range(len(src_pos)) if i != exclude]
-    if len(ids) < 2:
-        raise InputError("need at least 2 source frames (besides the target) to synthesize a view")
-    before = [i for i in ids if src_pos[i] <= q]
-    after = [i for i in ids if src_pos[i] > q]
-    if before and after:
-        return before[-1], after[0]
-    return (after[0], after[1]) if not before else (before[-1], before[-2])
-
-
-def flow_aligned(images: torch.Tensor, pairs: list[tuple[int, int]], fracs: list[float]) -> torch.Tensor:
-    """Each target's two sources aligned to it by optical flow (:func:`sparself.baselines.flow_pair`).
-
-    images: (S, 3, H, W) in [0, 1]; pairs: per target its two source indices; fracs: per target its
-    position between them (0 at the first, 1 at the second; clipped to [-0.5, 1.5] beyond them).
-    -> (T, 2, 3, H, W) on the images' device."""
-    from .baselines import flow_pair
-
-    imgs = images.float().permute(0, 2, 3, 1).cpu().numpy()
-    out = [np.stack(flow_pair(imgs[i], imgs[j], float(np.clip(t, -0.5, 1.5)))) for (i, j), t in zip(pairs, fracs)]
-    return torch.from_numpy(np.stack(out)).permute(0, 1, 4, 2, 3).to(images.device).contiguous()
-
-
-def bracket_fraction(src_pos: np.ndarray, pair: tuple[int, int], q: float) -> float:
-    """Position of q between the sources of ``pair``: 0 at the first, 1 at the second."""
-    a, b = float(src_pos[pair[0]]), float(src_pos[pair[1]])
-    return (q - a) / (b - a) if b != a else 0.0
-
-
-def scene_tensors(scene: Scene) -> dict:
-    """Sources of a scene (sorted by Frame.index) as tensors at their cameras' size.
-
-    Returns dict: images (S, 3, H, W), K (S, 3, 3), w2c (S, 4, 4) float32, index (S,) np.float64,
-    order (S,) positions in ``scene.frames``.
-    """
-    order = np.argsort([f.index for f in scene.frames], kind="stable")
-    imgs = np.stack([scene.load(int(i)) for i in order])  # raises on mixed sizes via torch stack below
-    return {
-        "images": torch.from_numpy(imgs).permute(0, 3, 1, 2).contiguous(),
-        "K": torch.tensor(np.stack([scene.camera(int(i)).K for i in order]), dtype=torch.float32),
-        "w2c": torch.tensor(np.stack([scene.frames[int(i)].pose.w2c() for i in order]), dtype=torch.float32),
-        "index": np.array([scene.frames[int(i)].index for i in order], dtype=np.float64),
-        "poses": [scene.frames[int(i)].pose for i in order],
-        "order": order,
-    }
-
 
 def sweep_depth_bounds(scene: Scene) -> tuple[float, float]:
     """(near, far) for the sweep planes: ``Scene.depth_bounds()`` when the scene knows its bounds or sparse
@@ -251,10 +201,46 @@ def fc_grid(width: int, height: int, side: int) -> tuple[int, int]:
 
 # ---- model construction and checkpoints ------------------------------------------------------------
 
-def build_model(cfg: TrainConfig, meta: dict) -> CNNLSTM:
-    dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta["fc_hw"]), windows=cfg.windows,
+@dataclass
+class RunMeta:
+    """What a run needs besides its config to place new poses: the pose normalisation (center, scale),
+    the sweep planes' depth range (near, far), the fc decoder's grid, the backbone's input side, the
+    training image size, the training frames' names, the scene's path, the backbone's initial weights
+    and whether the backbone was fine-tuned. Saved in the checkpoint as a dict (:meth:`to_json`)."""
+
+    center: tuple[float, float, float]
+    scale: float
+    near: float
+    far: float
+    fc_hw: tuple[int, int]
+    backbone_size: int
+    train_hw: tuple[int, int]
+    sources: list[str]
+    scene: str | None
+    weights: str = "random"
+    finetune_backbone: bool = True
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d.update(center=list(self.center), fc_hw=list(self.fc_hw), train_hw=list(self.train_hw))
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> "RunMeta":
+        known = {f.name for f in dataclasses.fields(cls)}
+        m = cls(**{k: v for k, v in d.items() if k in known})
+        m.center, m.fc_hw, m.train_hw = tuple(m.center), tuple(m.fc_hw), tuple(m.train_hw)
+        return m
+
+    @property
+    def norm(self) -> PoseNorm:
+        return PoseNorm(tuple(self.center), float(self.scale))
+
+
+def build_model(cfg: TrainConfig, meta: RunMeta) -> CNNLSTM:
+    dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta.fc_hw), windows=cfg.windows,
                         extra_layers=cfg.extra_layers, gate=cfg.gate, gate_init=cfg.gate_init)
-    return CNNLSTM(dec, backbone_size=meta["backbone_size"], context=cfg.context)
+    return CNNLSTM(dec, backbone_size=meta.backbone_size, context=cfg.context)
 
 
 @dataclass
@@ -263,16 +249,20 @@ class Run:
 
     model: CNNLSTM
     cfg: TrainConfig
-    meta: dict
+    meta: RunMeta
     path: Path | None = None
 
     @property
     def norm(self) -> PoseNorm:
-        return PoseNorm(tuple(self.meta["center"]), float(self.meta["scale"]))
+        return self.meta.norm
 
     @property
     def depths(self) -> np.ndarray:
-        return inverse_depth_planes(self.meta["near"], self.meta["far"], self.cfg.planes)
+        return inverse_depth_planes(self.meta.near, self.meta.far, self.cfg.planes)
+
+    def uses_flow(self) -> bool:
+        """Whether the decoder reads the sources aligned to each query by optical flow."""
+        return self.cfg.fallback == "flow" and self.model.decoder.reads_sources
 
 
 def _config_mismatch(saved: TrainConfig, cfg: TrainConfig) -> list[str]:
@@ -306,10 +296,11 @@ def load_run(path: Path | str, device: str = "cpu") -> Run:
     ck_path = path / CHECKPOINT if path.is_dir() else path
     ck = _read_checkpoint(ck_path)
     cfg = TrainConfig.from_json(ck["config"])
-    model = build_model(cfg, ck["meta"])
+    meta = RunMeta.from_json(ck["meta"])
+    model = build_model(cfg, meta)
     _load_state(model, ck["model"], ck_path)
     model.to(resolve_device(device)).eval()
-    return Run(model, cfg, ck["meta"], ck_path.parent)
+    return Run(model, cfg, meta, ck_path.parent)
 
 
 def _rng_state(gen: torch.Generator) -> dict:
@@ -341,76 +332,66 @@ def _deterministic(device: torch.device):
 
 # ---- the training step -----------------------------------------------------------------------------
 
-def _sweep_batch(data: dict, targets: list[int], crops: list[tuple[int, int, int, int]],
-                 depths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Sweep volumes (B, 8, D, h, w) of each leave-one-out target's two bracketing sources (never the
-    target itself) and the target's ground truth (B, 3, h, w). crops: (y0, x0, h, w) per target."""
-    xs, gts = [], []
-    imgs, K, w2c = data["images"], data["K"], data["w2c"]
-    for t, (y0, x0, h, w) in zip(targets, crops):
-        i, j = data["pairs"][t]
-        Kc = K[t].clone()
-        Kc[0, 2] -= x0
-        Kc[1, 2] -= y0
-        plain = data["aligned"][t, :, :, y0:y0 + h, x0:x0 + w] if "aligned" in data else None
-        xs.append(sweep_volume(imgs[[i, j]], K[[i, j]], w2c[[i, j]], Kc, w2c[t], depths, (h, w), plain))
-        gts.append(imgs[t, :, y0:y0 + h, x0:x0 + w])
-    return torch.stack(xs), torch.stack(gts)
+@dataclass
+class TrainData:
+    """What the training step reads: the sources, every source as a leave-one-out query, and each
+    query's ground truth at the decoder's output size (T, 3, h, w)."""
+
+    sources: Sources
+    queries: Queries
+    truth: torch.Tensor
+
+    def truth_of(self, targets: list[int], crops=None) -> torch.Tensor:
+        if crops is None:
+            return self.truth[np.asarray(targets)]
+        return torch.stack([self.truth[t, :, y0:y0 + h, x0:x0 + w] for t, (y0, x0, h, w) in zip(targets, crops)])
 
 
-def loo_forward(model: CNNLSTM, data: dict, targets: list[int], cfg: TrainConfig, depths: torch.Tensor,
-                crops: list[tuple[int, int, int, int]] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Leave-one-out predictions of training frames ``targets`` and their ground truth, (B, 3, h, w) each.
-
-    Each target's sequence has a query step in its place; the sweep decoder sees only its two bracketing
-    sources. crops: per target (y0, x0, h, w) for the sweep decoder (None: whole images).
-    """
-    # frozen backbone: its pooled features were computed once; else fine-tune it end to end
-    feats = model.feat_fc(data["bb_feats"]) if "bb_feats" in data else model.encode(data["bb"])
-    t_idx = np.asarray(targets)
-    n_before = torch.as_tensor(t_idx, device=feats.device)  # leave-one-out: the sources before t
-    ctx = model.contexts(feats, data["vec"], data["pos_t"], data["vec"][t_idx], data["pos_t"][t_idx], n_before)
-    if cfg.decoder == "fc":
-        return model.decoder(ctx), data["fc_images"][t_idx]
-    if crops is None:
-        _, _, h, w = data["images"].shape
-        crops = [(0, 0, h, w)] * len(targets)
-    x, gt = _sweep_batch(data, targets, crops, depths)
-    return model.decoder(x, ctx), gt
-
-
-def _loo_loss(model: CNNLSTM, data: dict, targets: list[int], gen: torch.Generator, cfg: TrainConfig,
-              depths: torch.Tensor) -> torch.Tensor:
-    crops = None
-    if cfg.decoder == "sweep":
-        _, _, h, w = data["images"].shape
-        c = min(cfg.crop, h, w)
-        ys = torch.randint(0, h - c + 1, (len(targets),), generator=gen).tolist()
-        xs = torch.randint(0, w - c + 1, (len(targets),), generator=gen).tolist()
-        crops = [(y, x, c, c) for y, x in zip(ys, xs)]
-    pred, gt = loo_forward(model, data, targets, cfg, depths, crops)
-    return synthesis_loss(pred, gt, cfg.ssim_weight)
-
-
-def attach_features(model: CNNLSTM, data: dict, finetune: bool) -> None:
-    """Backbone inputs (and, for a frozen backbone, its features, computed once) into ``data``."""
-    data["bb"] = model.backbone_input(data["images"])
+def training_data(model: CNNLSTM, sources: Sources, cfg: TrainConfig, finetune: bool) -> TrainData:
+    """Leave-one-out queries of every source (flow-aligned sources computed once per run), their ground
+    truth, and the backbone inputs (for a frozen backbone, its outputs, computed once)."""
+    hw = model.decoder.native_hw(sources.hw)
+    queries = leave_one_out(sources, hw)
+    if cfg.fallback == "flow" and model.decoder.reads_sources:
+        queries = flow_aligned(sources, queries)
+    truth = sources.images
+    if tuple(hw) != sources.hw:
+        truth = F.interpolate(sources.images, size=tuple(hw), mode="bilinear", align_corners=False, antialias=True)
+    bb = model.backbone_input(sources.images)
+    feats = None
     if not finetune:
         model.backbone.requires_grad_(False)
         with torch.no_grad():
-            data["bb_feats"] = model.backbone(data["bb"])
+            feats = model.backbone(bb)
+    return TrainData(dataclasses.replace(sources, backbone_input=bb, features=feats), queries, truth)
+
+
+def _random_crops(data: TrainData, n: int, side: int, gen: torch.Generator) -> list[tuple[int, int, int, int]]:
+    h, w = data.sources.hw
+    c = min(side, h, w)
+    ys = torch.randint(0, h - c + 1, (n,), generator=gen).tolist()
+    xs = torch.randint(0, w - c + 1, (n,), generator=gen).tolist()
+    return [(y, x, c, c) for y, x in zip(ys, xs)]
+
+
+def _loo_loss(model: CNNLSTM, data: TrainData, targets: list[int], gen: torch.Generator,
+              cfg: TrainConfig) -> torch.Tensor:
+    """The loss of leave-one-out targets: random crops for a decoder that reads the sources (it is
+    fully convolutional), whole images otherwise."""
+    crops = _random_crops(data, len(targets), cfg.crop, gen) if model.decoder.reads_sources else None
+    pred = render(model, data.sources, data.queries.select(targets), crops)
+    return synthesis_loss(pred, data.truth_of(targets, crops), cfg.ssim_weight)
 
 
 @torch.no_grad()
 def predict_leave_one_out(run: Run, scene: Scene, targets: list[int]) -> np.ndarray:
     """Leave-one-out predictions, exactly as training computes them, of the training frames at positions
     ``targets`` (in the run's training order: ``scene`` minus holdout, sorted by index), whole images.
-    -> (B, H, W, 3) at the training size."""
+    -> (B, H, W, 3) at the decoder's output size for the training size."""
     dev = next(run.model.parameters()).device
-    data, _ = prepare(scene, run.cfg, dev)
-    attach_features(run.model, data, run.meta.get("finetune_backbone", True))
-    depths = torch.tensor(run.depths, dtype=torch.float32, device=dev)
-    pred, _ = loo_forward(run.model.eval(), data, list(targets), run.cfg, depths)
+    sources, meta = prepare(scene, run.cfg, dev)
+    data = training_data(run.model, sources.posed(meta.norm, run.depths), run.cfg, run.meta.finetune_backbone)
+    pred = render(run.model.eval(), data.sources, data.queries.select(list(targets)))
     return pred.clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy()
 
 
@@ -422,14 +403,13 @@ def memory_estimate(small: Scene, cfg: TrainConfig, device: torch.device) -> dic
     one batch of sweep volumes (8 values x planes x crop^2) through the 3D CNN, kept for backward."""
     n = len(small)
     w, h = max(small.image_size(i) for i in range(n)) if n else (0, 0)
-    bb = cfg.backbone_size or (224 if device.type == "cuda" else 64)
-    finetune = cfg.finetune_backbone if cfg.finetune_backbone is not None else device.type == "cuda"
+    bb = backbone_side(cfg, device)
     c = min(cfg.crop, h, w)
     est = {
         "images": n * 3 * h * w * 4,
-        "backbone": n * 3 * bb * bb * 4 + (int(n * 40e6 * (bb / 224) ** 2) if finetune else 0),
+        "backbone": n * 3 * bb * bb * 4 + (int(n * 40e6 * (bb / 224) ** 2) if finetunes_backbone(cfg, device) else 0),
         "parameters": 4 * 4 * 12_000_000,
-        "sweep": cfg.batch_size * 8 * cfg.planes * c * c * 4 * (1 + 2 * cfg.channels) if cfg.decoder == "sweep" else 0,
+        "sweep": cfg.batch_size * 8 * cfg.planes * c * c * 4 * (1 + 2 * cfg.channels) if DECODERS[cfg.decoder].reads_sources else 0,
     }
     est["total"] = sum(est.values())
     return est
@@ -439,8 +419,6 @@ def _available_memory(device: torch.device) -> int | None:
     try:
         if device.type == "cuda":
             return int(torch.cuda.mem_get_info(device)[0])
-        import os
-
         return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, RuntimeError, AttributeError):
         return None
@@ -459,45 +437,121 @@ def log_memory_estimate(est: dict[str, int], device: torch.device, available: in
         log.info("%s", text)
 
 
-def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[dict, dict]:
-    """Training tensors and run metadata from the training frames (holdout removed, never loaded)."""
+def _training_frames(scene: Scene, cfg: TrainConfig) -> Scene:
+    """The scene minus ``cfg.holdout`` (never loaded), at one image size."""
     bad = [i for i in cfg.holdout if not 0 <= i < len(scene)]
     if bad:
         raise ConfigError(f"holdout positions {bad} are outside the scene's {len(scene)} frames")
     keep = [i for i in range(len(scene)) if i not in set(cfg.holdout)]
     if len(keep) < 3:
         raise InputError(f"need at least 3 training frames, got {len(keep)} (scene {scene.source})")
-    src = one_size(scene.subset(keep))
+    return one_size(scene.subset(keep))
+
+
+def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[Sources, RunMeta]:
+    """The training frames (holdout removed, never loaded) as posed sources on ``device``, and the run's
+    metadata."""
+    src = _training_frames(scene, cfg)
     small = src.resized(cfg.size)
     log_memory_estimate(memory_estimate(small, cfg, device), device)  # before any image is loaded
     try:
-        st = scene_tensors(small)
+        sources = Sources.from_scene(small)
     except ValueError as e:
         raise InputError(f"training frames of {scene.source} differ in size ({e}); resize them first") from None
-    centers = np.stack([p.center for p in st["poses"]])
+    centers = np.stack([p.center for p in sources.poses])
     norm = PoseNorm(tuple(float(v) for v in centers.mean(0)), float(src.scale()))
     near, far = sweep_depth_bounds(src)
-    _, _, h, w = st["images"].shape
-    bb_size = cfg.backbone_size or (224 if device.type == "cuda" else 64)
-    meta = {"center": list(norm.center), "scale": norm.scale, "near": near, "far": far,
-            "fc_hw": list(fc_grid(w, h, cfg.fc_side)), "backbone_size": bb_size, "train_hw": [h, w],
-            "sources": [src.frames[int(i)].name for i in st["order"]],
-            "scene": str(scene.source) if scene.source else None}
-    pos = np.arange(len(keep), dtype=np.float64)
-    data = {
-        "images": st["images"].to(device), "K": st["K"].to(device), "w2c": st["w2c"].to(device),
-        "pos_t": torch.tensor(pos, dtype=torch.float32, device=device),
-        "vec": torch.from_numpy(norm.vectors(st["poses"])).to(device),
-        # each leave-one-out target's two bracketing sources (never itself): fixed for the whole run
-        "pairs": [bracket(pos, float(pos[t]), exclude=t) for t in range(len(pos))],
-    }
-    data["fc_images"] = F.interpolate(data["images"], size=tuple(meta["fc_hw"]), mode="bilinear",
-                                      align_corners=False, antialias=True)
-    if cfg.decoder == "sweep" and cfg.fallback == "flow":  # once per run, like the pairs
-        pairs = data["pairs"]
-        data["aligned"] = flow_aligned(data["images"], pairs,
-                                       [bracket_fraction(pos, pr, float(pos[t])) for t, pr in enumerate(pairs)])
-    return data, meta
+    h, w = sources.hw
+    meta = RunMeta(center=norm.center, scale=norm.scale, near=near, far=far, fc_hw=fc_grid(w, h, cfg.fc_side),
+                   backbone_size=backbone_side(cfg, device), train_hw=(h, w),
+                   sources=[src.frames[int(i)].name for i in sources.order],
+                   scene=str(scene.source) if scene.source else None)
+    return sources.to(device).posed(norm, inverse_depth_planes(near, far, cfg.planes)), meta
+
+
+# ---- the training loop -----------------------------------------------------------------------------
+
+@dataclass
+class _Session:
+    """Everything one training run holds: the model and its optimiser state, the data and the RNG."""
+
+    model: CNNLSTM
+    opt: torch.optim.Optimizer
+    scaler: torch.amp.GradScaler
+    gen: torch.Generator
+    data: TrainData
+    device: torch.device
+    dtype: torch.dtype | None
+
+
+def _resume_checkpoint(out: Path, cfg: TrainConfig, resume: bool, overwrite: bool) -> dict | None:
+    """The checkpoint to continue from (None: a fresh run; the output folder is checked then)."""
+    if resume and not (out / CHECKPOINT).exists() and (out / CONFIG).is_file():
+        # killed before its first checkpoint: nothing to continue from, so the run starts again
+        log.warning("%s: no checkpoint yet (the run stopped before its first one); starting from epoch 0", out)
+        resume, overwrite = False, True
+    if not resume:
+        check_output_dir(out, overwrite)
+        return None
+    ck = _read_checkpoint(out / CHECKPOINT)
+    diff = _config_mismatch(TrainConfig.from_json(ck["config"]), cfg)
+    if diff:
+        raise ConfigError(f"{out / CHECKPOINT} was trained with a different config: {', '.join(diff)}")
+    return ck
+
+
+def _session(scene: Scene, cfg: TrainConfig, device: torch.device, ck: dict | None,
+             gen: torch.Generator) -> tuple[_Session, RunMeta]:
+    """Model, data and optimiser for a run (weights from ``ck`` are loaded later, after compiling)."""
+    sources, meta = prepare(scene, cfg, device)
+    model = build_model(cfg, meta)
+    meta.weights = load_resnet18_weights(model.backbone, cfg.weights) if ck is None else ck["meta"].get("weights", "random")
+    model.to(device)
+    meta.finetune_backbone = bool(finetunes_backbone(cfg, device))
+    data = training_data(model, sources, cfg, meta.finetune_backbone)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    dtype = amp_dtype(cfg.amp, device)
+    # gradient scaling only for fp16 on CUDA (bf16 has float32's range)
+    scaler = torch.amp.GradScaler("cuda", enabled=dtype == torch.float16 and device.type == "cuda")
+    if cfg.compile:
+        model.decoder.compile()
+        if meta.finetune_backbone:
+            model.backbone.compile()
+    return _Session(model, opt, scaler, gen, data, device, dtype), meta
+
+
+def _epoch(s: _Session, cfg: TrainConfig) -> float:
+    """One pass over every training frame in random order. -> mean loss."""
+    n, total = len(s.data.sources), 0.0
+    perm = torch.randperm(n, generator=s.gen).tolist()
+    for b in range(0, n, cfg.batch_size):
+        targets = perm[b:b + cfg.batch_size]
+        with autocast(s.device, s.dtype):
+            loss = _loo_loss(s.model, s.data, targets, s.gen, cfg)  # float32 (synthesis_loss)
+        s.opt.zero_grad(set_to_none=True)
+        s.scaler.scale(loss).backward()
+        s.scaler.step(s.opt)
+        s.scaler.update()
+        total += float(loss.detach()) * len(targets)
+    return total / n
+
+
+def _fit(s: _Session, out: Path, cfg: TrainConfig, meta: RunMeta, start: int, progress: bool | None) -> None:
+    bar = tqdm(range(start, cfg.epochs), initial=start, total=cfg.epochs, desc="train", unit="epoch",
+               disable=(not sys.stderr.isatty()) if progress is None else not progress)
+    s.model.train()
+    with _deterministic(s.device):
+        for epoch in bar:
+            t0, c0 = time.perf_counter(), time.process_time()
+            mean = _epoch(s, cfg)
+            bar.set_postfix(loss=f"{mean:.5f}")
+            _append_log(out / LOG, epoch + 1, mean, time.perf_counter() - t0, time.process_time() - c0)
+            if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
+                _save_checkpoint(out / CHECKPOINT, s, epoch + 1, cfg, meta)
+                if bar.disable:  # no bar (a log file, CI): say how far it is at each checkpoint
+                    log.info("train: epoch %d/%d, loss %.5f, %.1f s/epoch", epoch + 1, cfg.epochs, mean,
+                             time.perf_counter() - t0)
+    s.model.eval()
 
 
 def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resume: bool = False,
@@ -507,94 +561,33 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     resume: continue from ``out/checkpoint.pt`` (its config must match ``cfg`` except epochs/device).
     Returns the trained :class:`Run` (model in eval mode, on the training device).
     """
-    from tqdm.auto import tqdm
-
     cfg = cfg or TrainConfig()
     out = Path(out)
     device = resolve_device(cfg.device)
-    ck = None
-    if resume and not (out / CHECKPOINT).exists() and (out / CONFIG).is_file():
-        # killed before its first checkpoint: nothing to continue from, so the run starts again
-        log.warning("%s: no checkpoint yet (the run stopped before its first one); starting from epoch 0", out)
-        resume, overwrite = False, True
-    if resume:
-        ck = _read_checkpoint(out / CHECKPOINT)
-        saved = TrainConfig.from_json(ck["config"])
-        diff = _config_mismatch(saved, cfg)
-        if diff:
-            raise ConfigError(f"{out / CHECKPOINT} was trained with a different config: {', '.join(diff)}")
-    else:
-        check_output_dir(out, overwrite)
+    ck = _resume_checkpoint(out, cfg, resume, overwrite)
     random.seed(cfg.seed)
     np.random.seed(cfg.seed)
     torch.manual_seed(cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed)
-
-    data, meta = prepare(scene, cfg, device)
-    model = build_model(cfg, meta)
-    if ck is None:
-        meta["weights"] = load_resnet18_weights(model.backbone, cfg.weights)
-    else:
-        meta["weights"] = ck["meta"].get("weights", "random")
-    model.to(device)
-    finetune = cfg.finetune_backbone if cfg.finetune_backbone is not None else device.type == "cuda"
-    meta["finetune_backbone"] = bool(finetune)
-    attach_features(model, data, finetune)
-    depths = torch.tensor(inverse_depth_planes(meta["near"], meta["far"], cfg.planes), dtype=torch.float32,
-                          device=device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    dtype = amp_dtype(cfg.amp, device)
-    # gradient scaling only for fp16 on CUDA (bf16 has float32's range)
-    scaler = torch.amp.GradScaler("cuda", enabled=dtype == torch.float16 and device.type == "cuda")
-    if cfg.compile:
-        model.decoder.compile()
-        if finetune:
-            model.backbone.compile()
+    s, meta = _session(scene, cfg, device, ck, torch.Generator().manual_seed(cfg.seed))
     start = 0
     if ck is not None:
-        _load_state(model, ck["model"], out / CHECKPOINT)
-        opt.load_state_dict(ck["optimizer"])
-        scaler.load_state_dict(ck["scaler"])
-        _set_rng_state(ck["rng"], gen)
+        _load_state(s.model, ck["model"], out / CHECKPOINT)
+        s.opt.load_state_dict(ck["optimizer"])
+        s.scaler.load_state_dict(ck["scaler"])
+        _set_rng_state(ck["rng"], s.gen)
         start = int(ck["epoch"])
         log.info("resuming %s at epoch %d of %d", out, start, cfg.epochs)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_file(out / CONFIG) as tmp:
         tmp.write_text(json.dumps(cfg.to_json(), indent=2))
     _truncate_log(out / LOG, start)
-
-    n = data["images"].shape[0]
-    bar = tqdm(range(start, cfg.epochs), initial=start, total=cfg.epochs, desc="train", unit="epoch",
-               disable=(not sys.stderr.isatty()) if progress is None else not progress)
-    model.train()
-    with _deterministic(device):
-        for epoch in bar:
-            t0, c0, total = time.perf_counter(), time.process_time(), 0.0
-            perm = torch.randperm(n, generator=gen).tolist()
-            for b in range(0, n, cfg.batch_size):
-                targets = perm[b:b + cfg.batch_size]
-                with autocast(device, dtype):
-                    loss = _loo_loss(model, data, targets, gen, cfg, depths)  # float32 (synthesis_loss)
-                opt.zero_grad(set_to_none=True)
-                scaler.scale(loss).backward()
-                scaler.step(opt)
-                scaler.update()
-                total += float(loss.detach()) * len(targets)
-            mean = total / n
-            bar.set_postfix(loss=f"{mean:.5f}")
-            _append_log(out / LOG, epoch + 1, mean, time.perf_counter() - t0, time.process_time() - c0)
-            if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
-                _save_checkpoint(out / CHECKPOINT, model, opt, scaler, gen, epoch + 1, cfg, meta)
-                if bar.disable:  # no bar (a log file, CI): say how far it is at each checkpoint
-                    log.info("train: epoch %d/%d, loss %.5f, %.1f s/epoch", epoch + 1, cfg.epochs, mean,
-                             time.perf_counter() - t0)
-    model.eval()
-    return Run(model, cfg, meta, out)
+    _fit(s, out, cfg, meta, start, progress)
+    return Run(s.model, cfg, meta, out)
 
 
-def _save_checkpoint(path: Path, model, opt, scaler, gen, epoch: int, cfg: TrainConfig, meta: dict) -> None:
-    state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scaler": scaler.state_dict(),
-             "rng": _rng_state(gen), "epoch": epoch, "config": cfg.to_json(), "meta": meta}
+def _save_checkpoint(path: Path, s: _Session, epoch: int, cfg: TrainConfig, meta: RunMeta) -> None:
+    state = {"model": s.model.state_dict(), "optimizer": s.opt.state_dict(), "scaler": s.scaler.state_dict(),
+             "rng": _rng_state(s.gen), "epoch": epoch, "config": cfg.to_json(), "meta": meta.to_json()}
     with atomic_file(path) as tmp:
         torch.save(state, tmp)
 
@@ -619,7 +612,4 @@ def _append_log(path: Path, epoch: int, loss: float, seconds: float, cpu_seconds
 def train_scene(scene_path: Path | str, out: Path | str, cfg: TrainConfig | None = None, *,
                 resume: bool = False, overwrite: bool = False) -> Run:
     """`sparself train`: read a scene (anything ``sparself.io.read_scene`` accepts) and train on it."""
-    from . import io as sio
-
-    scene = sio.read_scene(Path(scene_path))
-    return train(scene, out, cfg, resume=resume, overwrite=overwrite)
+    return train(sio.read_scene(Path(scene_path)), out, cfg, resume=resume, overwrite=overwrite)

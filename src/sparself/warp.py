@@ -1,4 +1,5 @@
-"""Image warps over tensors: homography warps and plane-sweep volumes (shared by model, baselines, MPI).
+"""Image warps: homography warps and plane-sweep volumes over tensors, and optical-flow interpolation of
+two images (shared by model, baselines, MPI).
 
 Pixel convention (COLMAP's, used everywhere in sparself): the top-left image corner is (0, 0) and the
 centre of pixel (row i, col j) is (j + 0.5, i + 0.5). With ``grid_sample(align_corners=False)`` a
@@ -7,6 +8,7 @@ continuous pixel coordinate u maps to the normalised coordinate 2 u / W - 1 exac
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -95,3 +97,34 @@ def plane_sweep(
 
     H = plane_homographies(f64(K_src), f64(w2c_src), f64(K_dst), f64(w2c_dst), f64(depths))
     return _warp_many(src, H, out_hw)
+
+
+# ---- optical flow (OpenCV DIS) -------------------------------------------------------------------
+
+def _dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dense flow from a to b (a(x) ~ b(x + F(x))), DIS 'medium' preset on 8-bit gray. -> (H, W, 2)."""
+    import cv2
+
+    ga = cv2.cvtColor((a * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+    gb = cv2.cvtColor((b * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    return dis.calc(ga, gb, None)
+
+
+def _backward_warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """out(x) = img(x + flow(x)), bilinear, border replicated. img (H, W, 3), flow (H, W, 2)."""
+    import cv2
+
+    h, w = flow.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def flow_pair(i0: np.ndarray, i1: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Both images warped by optical flow to the intermediate time t: I0(x + F_t0) and I1(x + F_t1), with
+    the flows from t approximated as in Super SloMo (see :func:`sparself.baselines.flow`).
+    i0, i1: (H, W, 3) float32 in [0, 1]; t in [0, 1] (beyond it extrapolates). -> two (H, W, 3)."""
+    f01, f10 = _dis_flow(i0, i1), _dis_flow(i1, i0)
+    ft0 = -(1 - t) * t * f01 + t * t * f10
+    ft1 = (1 - t) ** 2 * f01 - t * (1 - t) * f10
+    return _backward_warp(i0, ft0.astype(np.float32)), _backward_warp(i1, ft1.astype(np.float32))

@@ -1,0 +1,80 @@
+"""The whole job in one call: photos (or a posed scene) -> poses -> plan -> train -> synthesize -> the
+dense scene written for COLMAP, LLFF and nerfstudio (``sparself densify``)."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from . import io as sio
+from .errors import InputError
+from .outputs import atomic_dir, check_output_dir
+from .plan import PlanConfig, plan_sequence, save_plan
+from .plot import plot_cameras
+from .scene import Scene, preloaded
+from .sfm import SfmConfig, recover_poses
+from .synthesize import densify_scene, synthesize
+from .train import TrainConfig, train
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class DensifyConfig:
+    """Options of the whole pipeline. out_size: long side in px of the written scene (None = as read);
+    training runs at that size too (``train.size`` is replaced by it)."""
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    plan: PlanConfig = field(default_factory=PlanConfig)
+    sfm: SfmConfig = field(default_factory=SfmConfig)
+    out_size: int | None = None
+    overwrite: bool = False
+    keep_run: bool = True
+
+
+def read_input(path: Path, cfg: DensifyConfig) -> Scene:
+    """A scene from anything read_scene accepts, else a folder of photos posed with SfM."""
+    try:
+        sio.detect_format(path)
+    except InputError:
+        pass  # no pose file here: a folder of photos (list_images/recover_poses say what is wrong with it)
+    else:
+        return sio.read_scene(path)  # a broken pose file is reported, not silently replaced by SfM
+    log.info("%s: no poses found; recovering them with structure from motion", path)
+    scene, _ = recover_poses(path, cfg.sfm)  # it logs what was registered and what not
+    return scene
+
+
+def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) -> Scene:
+    """Photos (or a posed scene) -> poses -> plan -> train -> synthesize -> written dense scene.
+
+    photos_or_scene: a Scene, or a path read by ``sparself.io.read_scene`` or a folder of photos (SfM).
+    out: folder written atomically: the dense scene in ``out/scene/`` (``sparself.io.write_scene`` layout:
+    images/, sparse/0/, poses_bounds.npy, transforms.json), the plan in ``out/plan.json``, a camera plot
+    ``out/cameras.png`` and, if ``keep_run``, the trained run in ``out/run/``. Returns the densified scene.
+    """
+    cfg = cfg or DensifyConfig()
+    out = Path(out)
+    check_output_dir(out, cfg.overwrite)
+    scene = photos_or_scene if isinstance(photos_or_scene, Scene) else read_input(Path(photos_or_scene), cfg)
+    if cfg.out_size:
+        scene = preloaded(scene.resized(cfg.out_size))
+    scene, targets = plan_sequence(scene, cfg.plan)  # sources on the plan's index scale
+    # train at the output resolution: the sweep decoder's windows are in pixels, and training cost depends
+    # on the crop size, not on the image size
+    long_side = max(max(c.width, c.height) for c in scene.cameras.values())
+    tcfg = replace(cfg.train, size=long_side)
+    with atomic_dir(out, cfg.overwrite) as tmp:
+        run = train(scene, tmp / "run", tcfg)
+        images = synthesize(run, scene, targets)
+        dense = densify_scene(scene, targets, images)
+        sio.write_scene_into(dense, tmp / "scene")
+        # the plan and a camera plot beside the scene, so users see where the new views are
+        save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
+        plot_cameras(scene, planned=targets, path=tmp / "cameras.png",
+                     title=f"{len(scene)} input views (blue) + {len(targets)} synthesized (orange)")
+        if not cfg.keep_run:
+            shutil.rmtree(tmp / "run")
+    return dense
