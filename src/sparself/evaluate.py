@@ -45,14 +45,13 @@ from tqdm.auto import tqdm
 from .errors import ConfigError, InputError, SparselfError
 from .recon import get_reconstructor
 from .report import safe_name as _safe
+from .results import NETWORK, FrameScore, ScoredSet, SeededSets
 from .scene import Frame, Scene, load_image, preloaded, save_image
 
 log = logging.getLogger(__name__)
 
 SynthFn = Callable[[Scene, list], np.ndarray]  # synthesize(scene, targets) -> (T, H, W, 3)
-NETWORK = "sparself"
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
-METRICS = ("psnr", "ssim", "lpips")
 MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported
 
 
@@ -207,22 +206,6 @@ def _score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> dict:
             "lpips": metrics.lpips(pred, truth) if use_lpips else None}
 
 
-def _summary(frames: list[dict]) -> dict:
-    from .metrics import summarize
-
-    return {m: summarize([f[m] for f in frames]) for m in METRICS}
-
-
-def _over_seeds(per_seed: list[dict]) -> dict:
-    """Mean +- std over seeds of each seed's per-scene mean."""
-    out = {}
-    for m in METRICS:
-        vals = [s["summary"][m]["mean"] for s in per_seed if s["summary"][m]["n"] > 0]
-        out[m] = {"mean": float(np.mean(vals)) if vals else float("nan"),
-                  "std": float(np.std(vals)) if vals else float("nan"), "n_seeds": len(vals)}
-    return out
-
-
 def versions() -> dict:
     """Versions of everything that produced the numbers (missing packages are None)."""
     out = {"python": platform.python_version(), "platform": platform.platform()}
@@ -344,6 +327,222 @@ def name_from_source(source: str | Path) -> str:
     return src.name
 
 
+@dataclass
+class _SceneEval:
+    """One scene's evaluation as its named steps fill it in: the split, the inputs and planned poses, the
+    images each method synthesized at the planned poses, and the results (``res``, JSON-able)."""
+
+    name: str
+    cfg: EvalConfig
+    full: Scene
+    split: Split
+    scored: list[int]  # held-out frames that are scored
+    inputs: Scene
+    planned: list[Frame]
+    mid_truth: dict[int, int]  # planned pose k -> the real frame at it (dense captures)
+    res: dict
+    out_dir: Path | None = None
+    ex_dir: Path | None = None
+    net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
+    baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def targets(self) -> list[Frame]:
+        """The scored held-out frames as poses only (what synthesizers and renderers see)."""
+        return [_pose_only(self.full.frames[i]) for i in self.scored]
+
+    @property
+    def mid_targets(self) -> list[int]:
+        return list(self.mid_truth.values())
+
+    def score(self, images: np.ndarray, label: str, idx: list[int], *, held_out: bool = True,
+              seed: int | None = None, views: int | None = None) -> ScoredSet:
+        """Score ``images`` against the real photos of frames ``idx``; for held-out frames among the
+        examples, also save the images (and the ground truth once) for the report."""
+        rows = []
+        for k, i in enumerate(idx):
+            frame = self.full.frames[i]
+            truth = _load_truth(frame, self.full.image_size(i))
+            rows.append(FrameScore(frame.name, i, **_score(images[k], truth, self.cfg.lpips)))
+            if held_out and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
+                self._save_example(frame.name, label, images[k], truth)
+        return ScoredSet(rows, seed=seed, views=views)
+
+    def _save_example(self, frame: str, label: str, image: np.ndarray, truth: np.ndarray) -> None:
+        d = self.ex_dir / _safe(frame)
+        d.mkdir(exist_ok=True)
+        if not (d / "ground_truth.png").exists():
+            save_image(d / "ground_truth.png", truth)
+        save_image(d / f"{_safe(label)}.png", image)
+        ex = self.res["examples"].setdefault(frame, {})
+        ex["ground_truth"] = str((d / "ground_truth.png").relative_to(self.out_dir))
+        ex[label] = str((d / f"{_safe(label)}.png").relative_to(self.out_dir))
+
+
+def _sorted_resized(scene: Scene, cfg: EvalConfig) -> Scene:
+    """The capture in index order at the evaluation's size, re-indexed 0..n-1."""
+    order = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)
+    full = scene.subset(order).resized(cfg.size)
+    return replace(full, frames=[replace(f, index=float(k)) for k, f in enumerate(full.frames)])
+
+
+def _protocol(ev: _SceneEval, plan_info: list[dict]) -> dict:
+    """What the report says about the split, and the cameras for its plot."""
+    full, split = ev.full, ev.split
+    return {
+        "kind": split.kind, "rule": split.rule, "n_frames": len(full),
+        "held_out": [full.frames[i].name for i in split.eval], "held_out_index": split.eval,
+        "scored": [full.frames[i].name for i in ev.scored],
+        "inputs": [full.frames[i].name for i in split.inputs], "inputs_index": split.inputs,
+        "image_size": list(full.image_size(0)), "planned": plan_info,
+        "camera_frames": {
+            "inputs": [f.pose.as_vector().tolist() for f in ev.inputs.frames],
+            "held_out": [f.pose.as_vector().tolist() for f in ev.targets],
+            "planned": [f.pose.as_vector().tolist() for f in ev.planned],
+        },
+    }
+
+
+def _start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None) -> _SceneEval:
+    """Split the capture, plan the novel poses and draw the cameras."""
+    name = scene_name(scene)
+    res: dict = {"name": name, "source": str(scene.source) if scene.source else None, "status": "running",
+                 "notes": [], "timings": {}}
+    full = _sorted_resized(scene, cfg)
+    split = make_split(len(full), cfg)
+    if len(split.eval) == 0:
+        raise InputError(f"{name}: {len(full)} frames leave no interior frame to hold out")
+    scored = split.eval
+    if cfg.max_eval and len(scored) > cfg.max_eval:
+        scored = [scored[p] for p in np.round(np.linspace(0, len(scored) - 1, cfg.max_eval)).astype(int)]
+    inputs = preloaded(full.subset(split.inputs))
+    planned, plan_info = _plan(inputs, split, cfg, full)
+    mid_truth = {k: rec["truth"] for k, rec in enumerate(plan_info) if rec["truth"] is not None}
+    ev = _SceneEval(name, cfg, full, split, scored, inputs, planned, mid_truth, res, out_dir)
+    res["protocol"] = _protocol(ev, plan_info)
+    if out_dir is not None and cfg.examples > 0:
+        ev.ex_dir = Path(out_dir) / "examples" / _safe(name)
+        ev.ex_dir.mkdir(parents=True, exist_ok=True)
+        _camera_plot(inputs, planned, [_pose_only(full.frames[i]) for i in split.eval], ev.ex_dir / "cameras.png", name)
+        res["camera_plot"] = str((ev.ex_dir / "cameras.png").relative_to(out_dir))
+    res["examples"] = {}
+    return ev
+
+
+def _network_synthesis(ev: _SceneEval, network: Callable[[Scene, int], SynthFn] | None) -> None:
+    """Train the network per seed on the inputs; score it at the held-out poses and the midpoints."""
+    if network is None:
+        try:
+            network = network_factory(ev.cfg)
+        except SparselfError as e:
+            ev.res["notes"].append(str(e))
+            return
+    held, mids = SeededSets(), SeededSets()
+    for seed in tqdm(range(ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
+        synth = network(ev.inputs, seed)
+        imgs = synth(ev.inputs, ev.targets)
+        held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
+        ev.net_planned.append(synth(ev.inputs, ev.planned))
+        if ev.mid_truth:
+            pimgs = ev.net_planned[-1][list(ev.mid_truth)]
+            mids.per_seed.append(ev.score(pimgs, NETWORK, ev.mid_targets, held_out=False, seed=seed))
+    ev.res["view_synthesis"][NETWORK] = held.to_json()
+    if mids.per_seed:
+        ev.res["midpoints"][NETWORK] = mids.to_json()
+
+
+def _baseline_synthesis(ev: _SceneEval, baselines: dict[str, SynthFn]) -> None:
+    """Each baseline at the held-out poses and the midpoints (and the planned poses it densifies)."""
+    vs, mids = ev.res["view_synthesis"], ev.res["midpoints"]
+    for bname, fn in tqdm(list(baselines.items()), desc=f"{ev.name}: baselines", disable=not ev.cfg.progress, leave=False):
+        try:
+            vs[bname] = ev.score(fn(ev.inputs, ev.targets), bname, ev.scored).to_json()
+            if bname in ev.cfg.densify_baselines or ev.mid_truth:
+                ev.baseline_planned[bname] = fn(ev.inputs, ev.planned)
+            if ev.mid_truth:
+                pimgs = ev.baseline_planned[bname][list(ev.mid_truth)]
+                mids[bname] = ev.score(pimgs, bname, ev.mid_targets, held_out=False).to_json()
+        except Exception as e:  # one broken baseline must not hide the others
+            log.warning("%s: baseline %s failed: %s", ev.name, bname, e)
+            vs[bname] = {"error": f"{type(e).__name__}: {e}"}
+
+
+def _oracle_scene(ev: _SceneEval) -> Scene:
+    """The inputs plus the real photos at the snapped midpoints (extrapolations keep the network's
+    seed-0 views, where it ran)."""
+    fill = ev.net_planned[0] if ev.net_planned else None
+    imgs, extra = [], []
+    for k, f in enumerate(ev.planned):
+        if k in ev.mid_truth:
+            # a real, non-held-out photo at exactly this pose (not an evaluation frame)
+            imgs.append(ev.full.load(ev.mid_truth[k]))
+            extra.append(f)
+        elif fill is not None:
+            imgs.append(fill[k])
+            extra.append(f)
+    return _with_images(ev.inputs, extra, imgs)
+
+
+def _densified_scenes(ev: _SceneEval) -> list[tuple[str, int | None, Scene]]:
+    """(key, network seed or None, scene) for every reconstruction: N alone, N + each seed's network
+    views, N + each densify-baseline's views, and the oracle."""
+    runs: list[tuple[str, int | None, Scene]] = [("base", None, ev.inputs)]
+    for seed, imgs in enumerate(ev.net_planned):
+        runs.append((NETWORK, seed, _with_images(ev.inputs, ev.planned, imgs)))
+    for b in ev.cfg.densify_baselines:
+        if b in ev.baseline_planned:
+            runs.append((b, None, _with_images(ev.inputs, ev.planned, ev.baseline_planned[b])))
+    if ev.cfg.oracle and ev.split.kind == "dense" and ev.mid_truth:
+        runs.append(("oracle", None, _oracle_scene(ev)))
+    return runs
+
+
+def _oracle_share(entry: dict) -> None:
+    if "oracle" in entry and NETWORK in entry:
+        b = entry["base"]["summary"]["psnr"]["mean"]
+        o = entry["oracle"]["summary"]["psnr"]["mean"]
+        s = entry[NETWORK]["summary"]["psnr"]["mean"]
+        # a share of a gain the oracle does not show is noise, not a fraction
+        entry["oracle_share"] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
+        entry["oracle_gain_db"] = float(o - b)
+
+
+def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
+    """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
+    (which keeps what was done if a fit fails)."""
+    net = SeededSets()
+    for key, seed, sc in tqdm(_densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False):
+        renderer = fit(sc)
+        imgs = np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
+        label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
+        scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
+        if seed is None:
+            entry[key] = scored.to_json()
+        else:
+            net.per_seed.append(scored)
+            entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append(scored.to_json())
+    if net.per_seed:
+        entry[NETWORK] = net.to_json()
+    _oracle_share(entry)
+    entry["status"] = "ok"
+
+
+def _densification(ev: _SceneEval, reconstructors: dict[str, Callable[[Scene], object]] | None) -> None:
+    """Each reconstructor from N views vs N + synthesized views vs the oracle; a failure is recorded."""
+    recs = reconstructors if reconstructors is not None else {}
+    dens: dict = {}
+    for rname in ev.cfg.reconstructors if reconstructors is None else list(recs):
+        t0 = time.perf_counter()
+        entry = dens[rname] = {}
+        try:
+            _reconstruct(ev, rname, recs[rname] if rname in recs else reconstructor(rname, ev.cfg), entry)
+        except Exception as e:
+            log.warning("%s: reconstructor %s failed: %s", ev.name, rname, e)
+            entry.update(status="failed", error=f"{type(e).__name__}: {e}")
+        entry["seconds"] = time.perf_counter() - t0
+    ev.res["densification"] = dens
+
+
 def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *,
                    network: Callable[[Scene, int], SynthFn] | None = None,
                    reconstructors: dict[str, Callable[[Scene], object]] | None = None,
@@ -355,169 +554,18 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
     out_dir: where example images are saved (``examples/<scene>/``); None saves none.
     """
     t_start = time.perf_counter()
-    name = scene_name(scene)
-    res: dict = {"name": name, "source": str(scene.source) if scene.source else None, "status": "running",
-                 "notes": [], "timings": {}}
-    frames_sorted = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)
-    full = scene.subset(frames_sorted).resized(cfg.size)
-    full = replace(full, frames=[replace(f, index=float(k)) for k, f in enumerate(full.frames)])
-    split = make_split(len(full), cfg)
-    if len(split.eval) == 0:
-        raise InputError(f"{name}: {len(full)} frames leave no interior frame to hold out")
-    eval_all = split.eval
-    if cfg.max_eval and len(eval_all) > cfg.max_eval:
-        eval_all = [eval_all[p] for p in np.round(np.linspace(0, len(eval_all) - 1, cfg.max_eval)).astype(int)]
-    truth_frames = {i: full.frames[i] for i in eval_all}  # scoring only
-    eval_targets = [_pose_only(full.frames[i]) for i in eval_all]
-    sizes = {i: full.image_size(i) for i in eval_all}
-    res["protocol"] = {
-        "kind": split.kind, "rule": split.rule, "n_frames": len(full),
-        "held_out": [full.frames[i].name for i in split.eval], "held_out_index": split.eval,
-        "scored": [full.frames[i].name for i in eval_all],
-        "inputs": [full.frames[i].name for i in split.inputs], "inputs_index": split.inputs,
-        "image_size": list(full.image_size(0)),
-    }
-    inputs = preloaded(full.subset(split.inputs))
-    planned, plan_info = _plan(inputs, split, cfg, full)
-    res["protocol"]["planned"] = plan_info
-    mid_truth = {k: rec["truth"] for k, rec in enumerate(plan_info) if rec["truth"] is not None}
-    res["protocol"]["camera_frames"] = {
-        "inputs": [f.pose.as_vector().tolist() for f in inputs.frames],
-        "held_out": [f.pose.as_vector().tolist() for f in eval_targets],
-        "planned": [f.pose.as_vector().tolist() for f in planned],
-    }
-    ex_dir = None
-    if out_dir is not None and cfg.examples > 0:
-        ex_dir = Path(out_dir) / "examples" / _safe(name)
-        ex_dir.mkdir(parents=True, exist_ok=True)
-        _camera_plot(inputs, planned, [_pose_only(full.frames[i]) for i in split.eval], ex_dir / "cameras.png", name)
-        res["camera_plot"] = str((ex_dir / "cameras.png").relative_to(out_dir))
-    examples = eval_all[: cfg.examples]
-    res["examples"] = {}
-
-    def score_set(images: np.ndarray, label: str, targets_idx: list[int], frames: dict[int, Frame]) -> list[dict]:
-        rows = []
-        for k, i in enumerate(targets_idx):
-            truth = _load_truth(frames[i], full.image_size(i))
-            row = {"frame": frames[i].name, "index": i, **_score(images[k], truth, cfg.lpips)}
-            rows.append(row)
-            if ex_dir is not None and i in examples and frames is truth_frames:
-                d = ex_dir / _safe(frames[i].name)
-                d.mkdir(exist_ok=True)
-                if not (d / "ground_truth.png").exists():
-                    save_image(d / "ground_truth.png", truth)
-                save_image(d / f"{_safe(label)}.png", images[k])
-                res["examples"].setdefault(frames[i].name, {})["ground_truth"] = \
-                    str((d / "ground_truth.png").relative_to(out_dir))
-                res["examples"][frames[i].name][label] = str((d / f"{_safe(label)}.png").relative_to(out_dir))
-        return rows
-
-    # ---- 1. view synthesis ----------------------------------------------------------------------
-    vs: dict = {}
-    mids: dict = {}
-    mid_idx = list(mid_truth.values())
-    mid_targets = [planned[k] for k in mid_truth]
-    mid_frames = {i: full.frames[i] for i in mid_idx}
-    synth_planned: dict[str, np.ndarray] = {}
+    ev = _start_scene(scene, cfg, out_dir)
+    ev.res["view_synthesis"], ev.res["midpoints"] = {}, {}
     t0 = time.perf_counter()
-    if network is None:
-        try:
-            network = network_factory(cfg)
-        except SparselfError as e:
-            res["notes"].append(str(e))
-    if network is not None:
-        per_seed, per_seed_mid = [], []
-        for seed in tqdm(range(cfg.seeds), desc=f"{name}: network seeds", disable=not cfg.progress, leave=False):
-            synth = network(inputs, seed)
-            imgs = synth(inputs, eval_targets)
-            rows = score_set(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, eval_all, truth_frames)
-            per_seed.append({"seed": seed, "frames": rows, "summary": _summary(rows)})
-            synth_planned[f"{NETWORK}#{seed}"] = synth(inputs, planned)
-            if mid_idx:
-                pimgs = synth_planned[f"{NETWORK}#{seed}"]
-                mrows = score_set(pimgs[list(mid_truth)], NETWORK, mid_idx, mid_frames)
-                per_seed_mid.append({"seed": seed, "frames": mrows, "summary": _summary(mrows)})
-        vs[NETWORK] = {"per_seed": per_seed, "summary": _over_seeds(per_seed)}
-        if per_seed_mid:
-            mids[NETWORK] = {"per_seed": per_seed_mid, "summary": _over_seeds(per_seed_mid)}
-    res["timings"]["network"] = time.perf_counter() - t0
-    bl = baselines if baselines is not None else _baseline_fns(cfg.baselines)
+    _network_synthesis(ev, network)
+    ev.res["timings"]["network"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    for bname, fn in tqdm(list(bl.items()), desc=f"{name}: baselines", disable=not cfg.progress, leave=False):
-        try:
-            imgs = fn(inputs, eval_targets)
-            rows = score_set(imgs, bname, eval_all, truth_frames)
-            vs[bname] = {"frames": rows, "summary": _summary(rows)}
-            if bname in cfg.densify_baselines or mid_idx:
-                synth_planned[bname] = fn(inputs, planned)
-            if mid_idx:
-                mrows = score_set(synth_planned[bname][list(mid_truth)], bname, mid_idx, mid_frames)
-                mids[bname] = {"frames": mrows, "summary": _summary(mrows)}
-        except Exception as e:  # one broken baseline must not hide the others
-            log.warning("%s: baseline %s failed: %s", name, bname, e)
-            vs[bname] = {"error": f"{type(e).__name__}: {e}"}
-    res["timings"]["baselines"] = time.perf_counter() - t0
-    res["view_synthesis"] = vs
-    res["midpoints"] = mids
-
-    # ---- 2. densification -----------------------------------------------------------------------
-    dens: dict = {}
-    recs = reconstructors if reconstructors is not None else {}
-    for rname in cfg.reconstructors if reconstructors is None else list(recs):
-        t0 = time.perf_counter()
-        entry: dict = {}
-        dens[rname] = entry
-        try:
-            fit = recs[rname] if rname in recs else reconstructor(rname, cfg)
-            runs: list[tuple[str, Scene]] = [("base", inputs)]
-            net_keys = sorted(k for k in synth_planned if k.startswith(f"{NETWORK}#"))
-            for k in net_keys:
-                runs.append((k, _with_images(inputs, planned, synth_planned[k])))
-            for b in cfg.densify_baselines:
-                if b in synth_planned:
-                    runs.append((b, _with_images(inputs, planned, synth_planned[b])))
-            if cfg.oracle and split.kind == "dense" and mid_truth:
-                fill = synth_planned.get(f"{NETWORK}#0")
-                imgs, extra = [], []
-                for k, f in enumerate(planned):
-                    if k in mid_truth:
-                        # a real, non-held-out photo at exactly this pose (not an evaluation frame)
-                        imgs.append(full.load(mid_truth[k]))
-                        extra.append(f)
-                    elif fill is not None:
-                        imgs.append(fill[k])
-                        extra.append(f)
-                runs.append(("oracle", _with_images(inputs, extra, imgs)))
-            for key, sc in tqdm(runs, desc=f"{name}: {rname} fits", disable=not cfg.progress, leave=False):
-                renderer = fit(sc)
-                imgs = np.stack([renderer.render(t.pose, full.cameras[t.camera_id]) for t in eval_targets])
-                label = f"{rname} {len(sc)} views ({key.replace('#', ' seed ')})"
-                rows = score_set(imgs, label, eval_all, truth_frames)
-                run = {"views": len(sc), "frames": rows, "summary": _summary(rows)}
-                if key.startswith(f"{NETWORK}#"):
-                    entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append({"seed": int(key.split("#")[1]), **run})
-                else:
-                    entry[key] = run
-            if NETWORK in entry:
-                entry[NETWORK]["summary"] = _over_seeds(entry[NETWORK]["per_seed"])
-                entry[NETWORK]["views"] = entry[NETWORK]["per_seed"][0]["views"]
-            if "oracle" in entry and NETWORK in entry:
-                b = entry["base"]["summary"]["psnr"]["mean"]
-                o = entry["oracle"]["summary"]["psnr"]["mean"]
-                s = entry[NETWORK]["summary"]["psnr"]["mean"]
-                # a share of a gain the oracle does not show is noise, not a fraction
-                entry["oracle_share"] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
-                entry["oracle_gain_db"] = float(o - b)
-            entry["status"] = "ok"
-        except Exception as e:
-            log.warning("%s: reconstructor %s failed: %s", name, rname, e)
-            entry["status"] = "failed"
-            entry["error"] = f"{type(e).__name__}: {e}"
-        entry["seconds"] = time.perf_counter() - t0
-    res["densification"] = dens
-    res["status"] = "ok"
-    res["timings"]["total"] = time.perf_counter() - t_start
-    return res
+    _baseline_synthesis(ev, baselines if baselines is not None else _baseline_fns(cfg.baselines))
+    ev.res["timings"]["baselines"] = time.perf_counter() - t0
+    _densification(ev, reconstructors)
+    ev.res["status"] = "ok"
+    ev.res["timings"]["total"] = time.perf_counter() - t_start
+    return ev.res
 
 
 def _camera_plot(inputs: Scene, planned: list[Frame], held: list[Frame], path: Path, name: str) -> None:

@@ -9,15 +9,19 @@ from __future__ import annotations
 
 import html
 import logging
-import math
+from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+
+from .results import METRICS as METRIC_NAMES
+from .results import NETWORK, finite, mean_of
+from .scene import load_image
 
 log = logging.getLogger(__name__)
 
-METRICS = (("psnr", "PSNR (dB) ↑"), ("ssim", "SSIM ↑"), ("lpips", "LPIPS ↓"))
-NETWORK = "sparself"
+METRICS = tuple(zip(METRIC_NAMES, ("PSNR (dB) ↑", "SSIM ↑", "LPIPS ↓")))  # (name, table label)
 UNAVAILABLE = "unavailable"
 
 
@@ -89,38 +93,19 @@ def lpips_available(results: dict) -> bool:
     return str(results.get("settings", {}).get("lpips_status", "")).startswith("available")
 
 
-def _num(v) -> float | None:
-    if v is None:
-        return None
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 def fmt(metric: str, value, std=None, *, lpips_ok: bool = True) -> str:
     """A table cell. LPIPS without weights is always "unavailable"; missing numbers are "–"."""
     if metric == "lpips" and not lpips_ok:
         return UNAVAILABLE
-    v = _num(value)
+    v = finite(value)
     if v is None:
         return UNAVAILABLE if metric == "lpips" else "–"
     digits = 2 if metric == "psnr" else 3
     s = f"{v:.{digits}f}"
-    sd = _num(std)
+    sd = finite(std)
     if sd is not None:
         s += f" ± {sd:.{digits}f}"
     return s
-
-
-def _mean_of(entry: dict | None, metric: str) -> tuple[float | None, float | None]:
-    """(mean, std-over-seeds or None) of a result entry's summary for a metric."""
-    if not entry or "summary" not in entry:
-        return None, None
-    s = entry["summary"].get(metric, {})
-    std = s.get("std") if "n_seeds" in s else None
-    return _num(s.get("mean")), (_num(std) if "n_seeds" in s and s.get("n_seeds", 0) > 1 else None)
 
 
 def _avg(vals: list) -> float | None:
@@ -140,8 +125,6 @@ def _change(a, b, metric: str, lpips_ok: bool) -> str:
 # ---- figures ---------------------------------------------------------------------------------------
 
 def _plt():
-    import matplotlib
-
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
@@ -170,8 +153,6 @@ def _bar_chart(path: Path, title: str, groups: list[str], series: dict[str, list
 
 def _image_grid(out_dir: Path, path: Path, images: dict[str, str]) -> bool:
     """Ground truth, then each prediction with its error map (|pred - truth| averaged over channels)."""
-    from .scene import load_image
-
     if "ground_truth" not in images:
         return False
     gt = load_image(out_dir / images["ground_truth"], warn=False)
@@ -222,19 +203,47 @@ def _label(s: dict, r: str | None = None) -> str:
     return s["name"]
 
 
+@dataclass
+class _Ctx:
+    """What every section of the report reads: the results, the scenes that ran, the reconstructors,
+    whether LPIPS is available, and where figures go."""
+
+    results: dict
+    ok: list[dict]
+    failed: list[dict]
+    recons: list[str]
+    lp: bool
+    out_dir: Path
+    fig_dir: Path
+
+    @property
+    def settings(self) -> dict:
+        return self.results.get("settings", {})
+
+
 def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
     """Write ``report.md``, ``report.html`` and figures (``figures/*.png``) into ``out_dir``."""
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
-    settings = results.get("settings", {})
-    lp = lpips_available(results)
     scenes_all = results.get("scenes", [])
     ok = [s for s in scenes_all if s.get("status") == "ok"]
-    failed = [s for s in scenes_all if s.get("status") != "ok"]
-    recons = _recon_names(ok)
+    c = _Ctx(results, ok, [s for s in scenes_all if s.get("status") != "ok"], _recon_names(ok),
+             lpips_available(results), out_dir, fig_dir)
     doc = _Doc()
     doc.h(1, "sparself evaluation report")
+    for section in (_protocol_section, _not_run_section, _densification_tables, _recon_comparisons,
+                    _view_synthesis_tables, _figures, _examples, _closing_sections):
+        section(doc, c)
+    md = out_dir / "report.md"
+    md.write_text(doc.markdown())
+    page = out_dir / "report.html"
+    page.write_text(doc.html("sparself evaluation report"))
+    return md, page
+
+
+def _protocol_section(doc: _Doc, c: _Ctx) -> None:
+    settings = c.settings
     doc.h(2, "Protocol")
     doc.p("Every number in this report is measured against real photos that were held out before anything "
           "else happened. Held-out images are never seen by network training, view synthesis or 3D "
@@ -258,154 +267,172 @@ def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
         "(PSNR(N+synth) − PSNR(N)) / (PSNR(oracle) − PSNR(N)).",
         f"sparself numbers are mean ± std over {settings.get('seeds', 3)} network seed(s) of the per-scene means.",
     ])
-    for s in ok:
+    for s in c.ok:
         doc.p(f"{s['name']}: {s['protocol']['rule']}. Held out: {', '.join(s['protocol']['held_out'])}; "
               f"scored: {len(s['protocol']['scored'])}; inputs: {', '.join(s['protocol']['inputs'])}.")
 
+
+def _not_run_section(doc: _Doc, c: _Ctx) -> None:
     doc.h(2, "Not run")
-    nr = dict(results.get("not_run", {}))
+    nr = dict(c.results.get("not_run", {}))
     nr.setdefault("dietnerf", "not run: needs CLIP weights that cannot be fetched here")
     items = [f"{k}: {v}" for k, v in nr.items()]
-    items.append(f"LPIPS: {settings.get('lpips_status', 'unavailable')}")
-    for s in ok:
+    items.append(f"LPIPS: {c.settings.get('lpips_status', 'unavailable')}")
+    for s in c.ok:
         items += [f"{s['name']}: {n}" for n in s.get("notes", [])]
         for r, d in s.get("densification", {}).items():
             if d.get("status") == "failed":
                 items.append(f"{s['name']} / {r}: failed: {d.get('error')}")
     doc.ul(items)
 
-    # ---- Tables 1-3 shape -------------------------------------------------------------------------
+
+def _densification_tables(doc: _Doc, c: _Ctx) -> None:
+    """The paper's Tables 1-3: per scene and on average, N vs N + synthesized views and the change."""
+    lp = c.lp
     doc.h(2, "Densification: N input views vs N + synthesized views (the paper's Tables 1–3)")
     for metric, mlabel in METRICS:
         header = ["Scene"]
-        for r in recons:
+        for r in c.recons:
             header += [f"{r} N", f"{r} N+synth", f"{r} change"]
-        rows, cols = [], {r: ([], []) for r in recons}
-        for s in ok:
+        rows, cols = [], {r: ([], []) for r in c.recons}
+        for s in c.ok:
             row = [s["name"]]
-            for r in recons:
+            for r in c.recons:
                 d = s["densification"].get(r, {})
-                a, _ = _mean_of(d.get("base"), metric)
-                b, sd = _mean_of(d.get(NETWORK), metric)
+                a, _ = mean_of(d.get("base"), metric)
+                b, sd = mean_of(d.get(NETWORK), metric)
                 cols[r][0].append(a)
                 cols[r][1].append(b)
                 row += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, sd, lpips_ok=lp), _change(a, b, metric, lp)]
             rows.append(row)
         avg = ["Average"]
-        for r in recons:
+        for r in c.recons:
             a, b = _avg(cols[r][0]), _avg(cols[r][1])
             avg += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, lpips_ok=lp), _change(a, b, metric, lp)]
         rows.append(avg)
         doc.h(3, mlabel)
         doc.table(header, rows)
 
-    for r in recons:
+
+def _share_cell(d: dict) -> str:
+    sh, gain = finite(d.get("oracle_share")), finite(d.get("oracle_gain_db"))
+    return (f"{100 * sh:.0f}%" if sh is not None else
+            (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–"))
+
+
+def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
+    """Per reconstructor: N alone, N + sparself, N + each baseline, the oracle, and the oracle share."""
+    names = {"base": "N only", NETWORK: "N + sparself", "oracle": "N + real (oracle)"}
+    for r in c.recons:
         doc.h(3, f"{r}: sparself vs baselines vs oracle (densification)")
         keys = []
-        for s in ok:
+        for s in c.ok:
             for k in s["densification"].get(r, {}):
                 if k not in keys and isinstance(s["densification"][r][k], dict) and "summary" in s["densification"][r][k]:
                     keys.append(k)
         order = ["base", NETWORK] + [k for k in keys if k not in ("base", NETWORK, "oracle")] + ["oracle"]
         order = [k for k in order if k in keys]
-        names = {"base": "N only", NETWORK: "N + sparself", "oracle": "N + real (oracle)"}
         for metric, mlabel in METRICS:
             header = ["Scene"] + [names.get(k, f"N + {k}") for k in order] + (["share of oracle gain"] if metric == "psnr" else [])
             rows = []
-            for s in ok:
+            for s in c.ok:
                 d = s["densification"].get(r, {})
-                row = [_label(s, r)] + [fmt(metric, *_mean_of(d.get(k), metric), lpips_ok=lp) for k in order]
-                if metric == "psnr":
-                    sh, gain = _num(d.get("oracle_share")), _num(d.get("oracle_gain_db"))
-                    row.append(f"{100 * sh:.0f}%" if sh is not None else
-                               (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–"))
-                rows.append(row)
+                row = [_label(s, r)] + [fmt(metric, *mean_of(d.get(k), metric), lpips_ok=c.lp) for k in order]
+                rows.append(row + ([_share_cell(d)] if metric == "psnr" else []))
             doc.p(mlabel)
             doc.table(header, rows)
 
-    # ---- view synthesis ---------------------------------------------------------------------------
-    doc.h(2, "View synthesis at held-out poses (sparself vs baselines)")
+
+def _methods(ok: list[dict]) -> list[str]:
     methods: list[str] = []
     for s in ok:
         for k, v in s.get("view_synthesis", {}).items():
             if k not in methods and "summary" in v:
                 methods.append(k)
+    return methods
+
+
+def _view_synthesis_tables(doc: _Doc, c: _Ctx) -> None:
+    doc.h(2, "View synthesis at held-out poses (sparself vs baselines)")
+    methods, lp = _methods(c.ok), c.lp
     for metric, mlabel in METRICS:
         rows, cols = [], {m: [] for m in methods}
-        for s in ok:
+        for s in c.ok:
             row = [s["name"]]
             for m in methods:
-                a, sd = _mean_of(s["view_synthesis"].get(m), metric)
+                a, sd = mean_of(s["view_synthesis"].get(m), metric)
                 cols[m].append(a)
                 row.append(fmt(metric, a, sd, lpips_ok=lp))
             rows.append(row)
         rows.append(["Average"] + [fmt(metric, _avg(cols[m]), lpips_ok=lp) for m in methods])
         doc.p(mlabel)
         doc.table(["Scene"] + methods, rows)
-    if any(s.get("midpoints") for s in ok):
+    if any(s.get("midpoints") for s in c.ok):
         doc.h(3, "View synthesis at midpoint poses (real photos between inputs; dense captures only)")
         for metric, mlabel in METRICS:
             rows = []
-            for s in ok:
+            for s in c.ok:
                 if s.get("midpoints"):
-                    rows.append([s["name"]] + [fmt(metric, *_mean_of(s["midpoints"].get(m), metric), lpips_ok=lp)
+                    rows.append([s["name"]] + [fmt(metric, *mean_of(s["midpoints"].get(m), metric), lpips_ok=lp)
                                                for m in methods])
             doc.p(mlabel)
             doc.table(["Scene"] + methods, rows)
 
-    # ---- figures ----------------------------------------------------------------------------------
+
+def _figures(doc: _Doc, c: _Ctx) -> None:
+    """Bar charts per metric: densification (N vs N + synth per reconstructor) and view synthesis."""
     doc.h(2, "Figures")
+    groups, methods = [s["name"] for s in c.ok], _methods(c.ok)
     for metric, mlabel in METRICS:
-        if metric == "lpips" and not lp:
+        if metric == "lpips" and not c.lp:
             continue
-        groups = [s["name"] for s in ok]
         series = {}
-        for r in recons:
-            series[f"{r} N"] = [_mean_of(s["densification"].get(r, {}).get("base"), metric)[0] for s in ok]
-            series[f"{r} N+synth"] = [_mean_of(s["densification"].get(r, {}).get(NETWORK), metric)[0] for s in ok]
+        for r in c.recons:
+            series[f"{r} N"] = [mean_of(s["densification"].get(r, {}).get("base"), metric)[0] for s in c.ok]
+            series[f"{r} N+synth"] = [mean_of(s["densification"].get(r, {}).get(NETWORK), metric)[0] for s in c.ok]
         if groups and series:
-            p = fig_dir / f"densification_{metric}.png"
+            p = c.fig_dir / f"densification_{metric}.png"
             _bar_chart(p, f"Densification: {mlabel}", groups, series, mlabel)
-            doc.img(str(p.relative_to(out_dir)), f"densification {metric}")
-        vseries = {m: [_mean_of(s["view_synthesis"].get(m), metric)[0] for s in ok] for m in methods}
+            doc.img(str(p.relative_to(c.out_dir)), f"densification {metric}")
+        vseries = {m: [mean_of(s["view_synthesis"].get(m), metric)[0] for s in c.ok] for m in methods}
         if groups and vseries:
-            p = fig_dir / f"view_synthesis_{metric}.png"
+            p = c.fig_dir / f"view_synthesis_{metric}.png"
             _bar_chart(p, f"View synthesis at held-out poses: {mlabel}", groups, vseries, mlabel)
-            doc.img(str(p.relative_to(out_dir)), f"view synthesis {metric}")
-    for s in ok:
+            doc.img(str(p.relative_to(c.out_dir)), f"view synthesis {metric}")
+
+
+def _examples(doc: _Doc, c: _Ctx) -> None:
+    """The camera plot and, per example frame, ground truth, predictions and error maps."""
+    for s in c.ok:
         if s.get("camera_plot"):
             doc.p(f"{s['name']}: cameras (inputs, planned/synthesized poses, held-out poses)")
             doc.img(s["camera_plot"], f"{s['name']} cameras")
         for frame, imgs in s.get("examples", {}).items():
-            p = fig_dir / f"grid_{safe_name(s['name'])}_{safe_name(Path(frame).stem)}.png"
+            p = c.fig_dir / f"grid_{safe_name(s['name'])}_{safe_name(Path(frame).stem)}.png"
             try:
-                if _image_grid(out_dir, p, imgs):
+                if _image_grid(c.out_dir, p, imgs):
                     doc.p(f"{s['name']}, held-out frame {frame}: ground truth, predictions and error maps")
-                    doc.img(str(p.relative_to(out_dir)), f"{s['name']} {frame}")
+                    doc.img(str(p.relative_to(c.out_dir)), f"{s['name']} {frame}")
             except Exception as e:  # a broken figure must not lose the tables
                 log.warning("image grid for %s failed: %s", frame, e)
 
-    # ---- conclusions, settings, failures ------------------------------------------------------------
+
+def _closing_sections(doc: _Doc, c: _Ctx) -> None:
+    """Conclusions, failed scenes, settings, versions and timings."""
     doc.h(2, "What the numbers say")
-    doc.ul(conclusions(results))
-    if failed:
+    doc.ul(conclusions(c.results))
+    if c.failed:
         doc.h(2, "Scenes that failed")
-        doc.table(["Scene", "Error"], [[s.get("name", "?"), str(s.get("error", ""))] for s in failed])
+        doc.table(["Scene", "Error"], [[s.get("name", "?"), str(s.get("error", ""))] for s in c.failed])
     doc.h(2, "Settings")
-    flat = {k: v for k, v in settings.items() if k != "versions"}
+    flat = {k: v for k, v in c.settings.items() if k != "versions"}
     doc.table(["Setting", "Value"], [[k, str(v)] for k, v in flat.items()])
-    doc.table(["Package", "Version"], [[k, str(v)] for k, v in settings.get("versions", {}).items()])
+    doc.table(["Package", "Version"], [[k, str(v)] for k, v in c.settings.get("versions", {}).items()])
     timing_rows = [[s["name"]] + [f"{s['timings'].get(k, float('nan')):.1f}" for k in ("network", "baselines", "total")]
-                   for s in ok]
+                   for s in c.ok]
     if timing_rows:
         doc.p("Wall-clock seconds (on a CPU shared with other jobs: inflated by contention).")
         doc.table(["Scene", "network", "baselines", "total"], timing_rows)
-
-    md = out_dir / "report.md"
-    md.write_text(doc.markdown())
-    page = out_dir / "report.html"
-    page.write_text(doc.html("sparself evaluation report"))
-    return md, page
 
 
 def conclusions(results: dict) -> list[str]:
@@ -413,8 +440,8 @@ def conclusions(results: dict) -> list[str]:
     ok = [s for s in results.get("scenes", []) if s.get("status") == "ok"]
     out = []
     for r in _recon_names(ok):
-        pairs = [(_mean_of(s["densification"][r].get("base"), "psnr")[0],
-                  _mean_of(s["densification"][r].get(NETWORK), "psnr")[0]) for s in ok if r in s["densification"]]
+        pairs = [(mean_of(s["densification"][r].get("base"), "psnr")[0],
+                  mean_of(s["densification"][r].get(NETWORK), "psnr")[0]) for s in ok if r in s["densification"]]
         pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
         if not pairs:
             out.append(f"{r}: no densification result.")
@@ -426,18 +453,18 @@ def conclusions(results: dict) -> list[str]:
                    f"{wins} of {len(pairs)} scenes).")
         for k in sorted({k for s in ok for k, v in s["densification"].get(r, {}).items()
                          if isinstance(v, dict) and "summary" in v} - {"base", NETWORK}):
-            diffs = [_mean_of(s["densification"][r].get(NETWORK), "psnr")[0] - _mean_of(s["densification"][r][k], "psnr")[0]
+            diffs = [mean_of(s["densification"][r].get(NETWORK), "psnr")[0] - mean_of(s["densification"][r][k], "psnr")[0]
                      for s in ok if r in s["densification"] and k in s["densification"][r]
-                     and _mean_of(s["densification"][r].get(NETWORK), "psnr")[0] is not None
-                     and _mean_of(s["densification"][r][k], "psnr")[0] is not None]
+                     and mean_of(s["densification"][r].get(NETWORK), "psnr")[0] is not None
+                     and mean_of(s["densification"][r][k], "psnr")[0] is not None]
             if diffs:
                 who = "the real photos (oracle)" if k == "oracle" else f"{k}-synthesized views"
                 out.append(f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average "
                            f"over the {len(diffs)} scene(s) where both ran.")
     vs = [(s["name"], s.get("view_synthesis", {})) for s in ok]
     for name, v in vs:
-        net, _ = _mean_of(v.get(NETWORK), "psnr")
-        base = {k: _mean_of(e, "psnr")[0] for k, e in v.items() if k != NETWORK and "summary" in e}
+        net, _ = mean_of(v.get(NETWORK), "psnr")
+        base = {k: mean_of(e, "psnr")[0] for k, e in v.items() if k != NETWORK and "summary" in e}
         base = {k: x for k, x in base.items() if x is not None}
         if net is None or not base:
             continue
