@@ -164,23 +164,40 @@ def _add_evaluate(sub) -> None:
     p.add_argument("scenes", type=Path, nargs="*", help="scene folders or pose files")
     p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
     p.add_argument("--manifest", type=Path, default=None, help="file listing scene paths, one per line")
-    p.add_argument("--inputs", type=int, default=None, help="N sparse input views of a dense capture (default 25)")
-    p.add_argument("--size", type=int, default=None, help="longer image side in pixels (default 128; quick: 64)")
-    p.add_argument("--seeds", type=int, default=None, help="network seeds, reported as mean ± std (default 3)")
-    p.add_argument("--recon", default=None, help="reconstructors, comma-separated: mpi,nerf,gsplat (default mpi,nerf)")
-    p.add_argument("--epochs", type=int, default=None, help="network training epochs (default: the network's)")
     p.add_argument("--quick", action="store_true",
-                   help="minutes instead of hours on a CPU: 64 px, 1 seed, 3 network epochs, short NeRF, at most 6 scored frames")
+                   help="minutes instead of hours on a CPU: 64 px, 1 seed, 3 network epochs, short NeRF, at most 6 "
+                        "scored frames, one baseline densified")
+    _eval_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     _common(p)
     p.set_defaults(func=_run_evaluate)
 
 
-def _run_evaluate(args) -> int:
-    from .evaluate import run_cli
+_EVAL_OWNS = ("size", "epochs", "seed", "holdout")  # training options the evaluation sets itself
 
-    res = run_cli(args.scenes, args.out, args.manifest, inputs=args.inputs, size=args.size, seeds=args.seeds,
-                  recon=args.recon, epochs=args.epochs, quick=args.quick, overwrite=args.overwrite)
+
+def _quick() -> dict:
+    from .evaluate import QUICK
+
+    return QUICK
+
+
+def _eval_options(p: argparse.ArgumentParser) -> None:
+    """EvalConfig's fields, then the network's training options (both built from their dataclasses)."""
+    from .evaluate import EvalConfig
+    from .options import add_options
+
+    add_options(p, EvalConfig, unset=True, notes={k: f"; --quick: {v}" for k, v in _quick().items()})
+    g = p.add_argument_group("network training (as `sparself train`; seed, size and epochs are set above)")
+    _train_options(g, skip=_EVAL_OWNS)
+
+
+def _run_evaluate(args) -> int:
+    from .evaluate import EvalConfig, run_cli
+    from .options import given
+
+    res = run_cli(args.scenes, args.out, args.manifest, quick=args.quick, overwrite=args.overwrite,
+                  train_cfg=_train_config(args, skip=_EVAL_OWNS), **given(EvalConfig, args))
     bad = [s["name"] for s in res["scenes"] if s.get("status") != "ok"]
     print(f"evaluated {len(res['scenes']) - len(bad)} scene(s) -> {args.out / 'report.md'}"
           + (f"; failed: {', '.join(bad)}" if bad else ""))
@@ -236,49 +253,19 @@ _COMMANDS.append(_add_poses)
 
 # ---- train / synthesize / densify (the CNN–LSTM synthesizer) ----------------------------------------
 
-def _train_options(p: argparse.ArgumentParser) -> None:
-    from .train import TrainConfig as T
-
-    p.add_argument("--epochs", type=int, default=T.epochs, help=f"training epochs (default {T.epochs})")
-    p.add_argument("--size", type=int, default=T.size,
-                   help=f"long side in px of the training images (default {T.size}, CPU-sane)")
-    p.add_argument("--crop", type=int, default=T.crop, help=f"training crop side in px (default {T.crop})")
-    p.add_argument("--decoder", choices=["sweep", "fc"], default=T.decoder,
-                   help="sweep: plane-sweep 3D CNN that generalises to new poses (default); "
-                        "fc: the paper's single linear layer (memorises its inputs)")
-    p.add_argument("--backbone-size", type=int, default=T.backbone_size,
-                   help="ResNet-18 input side; 0 = auto: 224 (the paper's) on CUDA, 64 on CPU")
-    p.add_argument("--holdout", default="",
-                   help="comma-separated frame positions (0-based) never used for training, e.g. 3,10")
-    p.add_argument("--seed", type=int, default=T.seed, help="random seed (same seed, same result on CPU)")
-    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default=T.device, help="where to train")
-    p.add_argument("--batch-size", type=int, default=T.batch_size,
-                   help=f"leave-one-out targets per step (default {T.batch_size})")
-    p.add_argument("--weights", default=None,
-                   help="ResNet-18 ImageNet weights (torchvision's resnet18-f37072fd.pth); default: the "
-                        "torch hub cache copy if present, else random initialisation with a warning; "
-                        "'none': random initialisation, no warning")
-    p.add_argument("--fallback", choices=["flow", "blend"], default=T.fallback,
-                   help="what the sweep decoder falls back to where depth is ambiguous: the two sources aligned "
-                        "by optical flow (default) or as they are")
-    p.add_argument("--amp", choices=["auto", "off", "fp16", "bf16"], default=T.amp,
-                   help="mixed precision (default auto: fp16 with gradient scaling on CUDA, float32 on CPU)")
-    p.add_argument("--compile", action="store_true", help="torch.compile the decoder (pays on GPU for long runs)")
-    p.add_argument("--no-context", action="store_true", help="ablation: zero the LSTM output")
-
-
-def _train_config(args):
-    from .errors import ConfigError
+def _train_options(p: argparse.ArgumentParser, skip: tuple[str, ...] = ()) -> None:
+    """Every TrainConfig field as an option (built from the dataclass: its defaults and help)."""
+    from .options import add_options
     from .train import TrainConfig
 
-    try:
-        hold = tuple(int(x) for x in args.holdout.split(",") if x.strip()) if args.holdout else ()
-    except ValueError:
-        raise ConfigError(f"--holdout must be comma-separated integers, got {args.holdout!r}") from None
-    return TrainConfig(decoder=args.decoder, epochs=args.epochs, size=args.size, crop=args.crop,
-                       backbone_size=args.backbone_size, batch_size=args.batch_size, seed=args.seed,
-                       device=args.device, holdout=hold, weights=args.weights, context=not args.no_context,
-                       amp=args.amp, compile=args.compile, fallback=args.fallback)
+    add_options(p, TrainConfig, skip)
+
+
+def _train_config(args, skip: tuple[str, ...] = ()):
+    from .options import from_args
+    from .train import TrainConfig
+
+    return from_args(TrainConfig, args, skip)
 
 
 def _add_train(sub) -> None:
@@ -339,9 +326,9 @@ def _add_densify(sub) -> None:
     p.add_argument("photos", type=Path, help="folder of photos, or a posed scene")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     _plan_options(p)
-    p.add_argument("--out-size", type=int, default=None, help="long side in px of the written scene and of training (default: as read; "
-                        "--size is not used by densify)")
-    _train_options(p)
+    p.add_argument("--out-size", type=int, default=None,
+                   help="long side in px of the written scene and of training (default: as read)")
+    _train_options(p, skip=("size",))
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     _common(p)
     p.set_defaults(func=_run_densify)

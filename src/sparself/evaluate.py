@@ -33,6 +33,7 @@ import json
 import logging
 import platform
 import subprocess
+import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field, replace
@@ -42,11 +43,23 @@ from typing import Callable, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
+from . import metrics
+from .baselines import BASELINES
 from .errors import ConfigError, InputError, SparselfError
+from .geometry import rotation_angle_deg
+from .io import read_scene
+from .model import default_weights
+from .options import option
+from .outputs import atomic_dir
+from .plan import PlanConfig, plan_poses
+from .plot import plot_cameras
 from .recon import get_reconstructor
 from .report import safe_name as _safe
+from .report import write_report
 from .results import NETWORK, FrameScore, ScoredSet, SeededSets
-from .scene import Frame, Scene, load_image, preloaded, save_image
+from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
+from .synthesize import densify_scene, synthesizer
+from .train import TrainConfig, train
 
 log = logging.getLogger(__name__)
 
@@ -55,44 +68,39 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported
 
 
+# what --quick changes
+QUICK = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
+
+
 @dataclass
 class EvalConfig:
-    """Every setting of an evaluation run (all recorded in the results).
+    """Every setting of an evaluation run (all recorded in the results; each field's help is its
+    documentation, and ``sparself evaluate --help`` shows them). ``train``: the network's training options
+    (its seed, size and epochs are set by the evaluation)."""
 
-    size: longer image side in pixels for every step (images are resized once, on load).
-    inputs: N, the number of sparse input views taken from a dense capture.
-    holdout_every: hold out every k-th interior frame of a dense capture.
-    sparse_holdout_every: the same for captures too small for the dense protocol.
-    n_mid, n_extra: planned novel poses (midpoints, extrapolations) for densification.
-    seeds: network seeds (mean +- std is reported over them).
-    reconstructors: names in sparself.recon ("mpi", "nerf", "gsplat").
-    baselines: view-synthesis baselines scored on held-out poses.
-    densify_baselines: baselines whose synthesized views are also used for densification.
-    epochs: network training epochs (None: the network's default).
-    nerf_steps: NeRF optimisation steps per fit.
-    max_eval: score at most this many held-out frames per scene (evenly chosen; None: all).
-    oracle: run the oracle densification where the capture allows it.
-    examples: held-out frames per scene saved as image grids for the report.
-    """
-
-    size: int = 128
-    inputs: int = 25
-    holdout_every: int = 8
-    sparse_holdout_every: int = 2
-    n_mid: int = 8
-    n_extra: int = 2
-    seeds: int = 3
-    reconstructors: tuple[str, ...] = ("mpi", "nerf")
-    baselines: tuple[str, ...] = ("nearest", "blend", "flow", "planesweep")
-    densify_baselines: tuple[str, ...] = ("blend", "flow", "planesweep")
-    epochs: int | None = None
-    nerf_steps: int = 1000
-    recon_seed: int = 0
-    max_eval: int | None = None
-    oracle: bool = True
-    examples: int = 1
-    lpips: bool = True
-    progress: bool = True
+    size: int = option(128, "longer image side in pixels for every step (images are resized once, on load)")
+    inputs: int = option(25, "N, the number of sparse input views taken from a dense capture")
+    holdout_every: int = option(8, "hold out every k-th interior frame of a dense capture")
+    sparse_holdout_every: int = option(2, "the same for captures too small for the dense protocol")
+    n_mid: int = option(8, "planned midpoints used for densification")
+    n_extra: int = option(2, "planned extrapolated poses used for densification")
+    seeds: int = option(3, "network seeds, reported as mean ± std")
+    reconstructors: tuple[str, ...] = option(("mpi", "nerf"), "reconstructors, comma-separated: mpi,nerf,gsplat",
+                                             flag="--recon")
+    baselines: tuple[str, ...] = option(("nearest", "blend", "flow", "planesweep"),
+                                        "view-synthesis baselines scored on held-out poses")
+    densify_baselines: tuple[str, ...] = option(("blend", "flow", "planesweep"),
+                                                "baselines whose synthesized views are also used for densification")
+    epochs: int | None = option(None, "network training epochs (auto: the network's)")
+    nerf_steps: int = option(1000, "NeRF optimisation steps per fit")
+    recon_seed: int = option(0, "seed of the reconstructors")
+    max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; "
+                                  "auto: all)")
+    oracle: bool = option(True, "skip the oracle densification (real photos at the planned poses)")
+    examples: int = option(1, "held-out frames per scene saved as image grids for the report")
+    lpips: bool = option(True, "skip LPIPS")
+    progress: bool = option(True, "progress bars", cli=False)
+    train: TrainConfig = field(default_factory=TrainConfig)
 
     def validate(self) -> None:
         if self.size < 8:
@@ -108,7 +116,7 @@ class EvalConfig:
     def quick(cls, **kw) -> "EvalConfig":
         """Minutes, not hours, on 2 CPU cores: 64 px, 1 seed, 3 network epochs (an under-trained network),
         a short NeRF, at most 6 scored frames, one baseline densified."""
-        base = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
+        base = dict(QUICK)
         base.update(kw)
         return cls(**base)
 
@@ -190,8 +198,6 @@ def _pose_only(f: Frame, **kw) -> Frame:
 def _load_truth(frame: Frame, size: tuple[int, int]) -> np.ndarray:
     """Decode a real photo for scoring. The ONLY place the evaluation reads a held-out image."""
     if frame.image is not None:
-        from .scene import resize_image
-
         img = frame.image
         return img if (img.shape[1], img.shape[0]) == tuple(size) else resize_image(img, size)
     if frame.path is None:
@@ -200,8 +206,6 @@ def _load_truth(frame: Frame, size: tuple[int, int]) -> np.ndarray:
 
 
 def _score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> dict:
-    from . import metrics
-
     return {"psnr": metrics.psnr(pred, truth), "ssim": metrics.ssim(pred, truth),
             "lpips": metrics.lpips(pred, truth) if use_lpips else None}
 
@@ -227,37 +231,23 @@ def versions() -> dict:
 # ---- synthesizers and reconstructors ---------------------------------------------------------------
 
 def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
-    """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.train.train`` on the
-    inputs (in a temporary run folder) and returns the bound ``synthesize(scene, targets)``.
-
-    Raises SparselfError when the network package is not importable (the report says so).
-    """
-    try:
-        from .synthesize import synthesizer
-        from .train import TrainConfig, train
-    except ImportError as e:
-        raise SparselfError(f"the sparself network is not available: {e}") from None
-
-    from .model import default_weights
-
-    weights = default_weights()  # resolved (and warned about) once, not once per scene and seed
+    """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.train.train`` with
+    ``cfg.train`` (seed, size and epochs from the evaluation) on the inputs, in a temporary run folder, and
+    returns the bound ``synthesize(scene, targets)``."""
+    # resolved (and warned about) once, not once per scene and seed
+    weights = cfg.train.weights if cfg.train.weights is not None else default_weights()
+    base = replace(cfg.train, size=cfg.size, weights=weights,
+                   epochs=cfg.epochs if cfg.epochs is not None else cfg.train.epochs)
 
     def make(scene: Scene, seed: int) -> SynthFn:
-        import tempfile
-
-        kw = {"seed": seed, "size": cfg.size, "weights": weights}
-        if cfg.epochs is not None:
-            kw["epochs"] = cfg.epochs
         with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
-            run = train(scene, Path(tmp) / "run", TrainConfig(**kw), progress=cfg.progress)
+            run = train(scene, Path(tmp) / "run", replace(base, seed=seed), progress=cfg.progress)
         return synthesizer(run)
 
     return make
 
 
 def _baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
-    from .baselines import BASELINES
-
     unknown = [n for n in names if n not in BASELINES]
     if unknown:
         raise ConfigError(f"unknown baseline(s) {unknown}; known: {sorted(BASELINES)}")
@@ -277,15 +267,11 @@ def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
 
 def _with_images(scene: Scene, extra: list[Frame], images) -> Scene:
     """scene plus ``extra`` frames carrying in-memory images, sorted by capture index."""
-    from .synthesize import densify_scene
-
     return densify_scene(scene, list(extra), np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:]))
 
 
 def _plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
     """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints)."""
-    from .plan import PlanConfig, plan_poses
-
     planned = plan_poses(inputs, PlanConfig(n_mid=cfg.n_mid, n_extra=cfg.n_extra, order="capture"))
     info: list[dict] = []
     out: list[Frame] = []
@@ -299,8 +285,6 @@ def _plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[li
             if cands:
                 j = min(cands, key=lambda i: (abs(i - f.index), i))
                 real = full.frames[j]
-                from .geometry import rotation_angle_deg
-
                 rec.update(truth=j, truth_name=real.name,
                            snap_move=float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale()),
                            snap_turn_deg=float(rotation_angle_deg(real.pose.R, f.pose.R)))
@@ -570,8 +554,6 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
 
 def _camera_plot(inputs: Scene, planned: list[Frame], held: list[Frame], path: Path, name: str) -> None:
     try:
-        from .plot import plot_cameras
-
         plot_cameras(inputs, planned, held, path=path, title=f"{name}: inputs, planned (synthesized), held-out")
     except Exception as e:  # a missing plot is not worth failing the evaluation
         log.warning("camera plot failed: %s", e)
@@ -601,8 +583,6 @@ def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Pat
     Returns {"settings", "scenes": [...], "not_run": {...}}. hooks are passed to :func:`evaluate_scene`.
     """
     cfg.validate()
-    from . import metrics
-
     try:
         from .recon.gsplat import available as gs_available
 
@@ -627,8 +607,6 @@ def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Pat
             if isinstance(item, Scene):
                 scene = item
             else:
-                from .io import read_scene
-
                 scene = read_scene(Path(item))
             results["scenes"].append(evaluate_scene(scene, cfg, out_dir, **hooks))
         except Exception as e:
@@ -643,9 +621,6 @@ def evaluate(scenes: Sequence[Scene | Path], out: Path, cfg: EvalConfig | None =
              overwrite: bool = False, **hooks) -> dict:
     """Run the protocol and write ``results.json``, ``report.md``, ``report.html`` and figures to ``out``
     (atomically: nothing is left there if it fails). Returns the results."""
-    from .outputs import atomic_dir
-    from .report import write_report
-
     cfg = cfg or EvalConfig()
     cfg.validate()
     with atomic_dir(Path(out), overwrite) as tmp:
@@ -669,18 +644,16 @@ def _jsonable(x):
     return x
 
 
-def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None, *, inputs: int | None = None,
-            size: int | None = None, seeds: int | None = None, recon: str | None = None,
-            epochs: int | None = None, quick: bool = False, overwrite: bool = False) -> dict:
+def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None, *, quick: bool = False,
+            overwrite: bool = False, train_cfg: TrainConfig | None = None, **given) -> dict:
     """What ``sparself evaluate`` does: gather scenes (arguments + manifest) and call :func:`evaluate`.
 
-    Options left as None keep the defaults of :class:`EvalConfig` (or of :meth:`EvalConfig.quick`).
+    given: :class:`EvalConfig` fields set on the command line; the others keep the defaults of
+    :class:`EvalConfig` (or of :meth:`EvalConfig.quick`). train_cfg: the network's training options.
     """
     paths = [Path(p) for p in scene_paths] + (read_manifest(manifest) if manifest else [])
     if not paths:
         raise InputError("no scenes given (pass scene folders or --manifest FILE)")
     cfg = EvalConfig.quick() if quick else EvalConfig()
-    given = dict(inputs=inputs, size=size, seeds=seeds, epochs=epochs,
-                 reconstructors=tuple(r.strip() for r in recon.split(",") if r.strip()) if recon else None)
-    cfg = replace(cfg, **{k: v for k, v in given.items() if v is not None})
+    cfg = replace(cfg, **{k: v for k, v in given.items() if v is not None}, train=train_cfg or cfg.train)
     return evaluate(paths, out, cfg, overwrite=overwrite)

@@ -38,6 +38,7 @@ from tqdm.auto import tqdm
 
 from . import io as sio
 from .errors import ConfigError, InputError
+from .options import option
 from .geometry import inverse_depth_planes, nearest_point_to_axes
 from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights
 from .model.decoders import DECODERS, synthesis_loss
@@ -52,60 +53,46 @@ CHECKPOINT, CONFIG, LOG = "checkpoint.pt", "config.json", "train_log.csv"
 
 @dataclass
 class TrainConfig:
-    """Training options. Defaults are CPU-sane: ``sparself densify`` on 25 images takes minutes on 2 cores.
+    """Training options (each field's help is its documentation; ``sparself train --help`` shows them).
+    Defaults are CPU-sane: ``sparself densify`` on 25 images takes minutes on 2 cores. The fallback was
+    measured (benchmarks/synthesis_quality.py): llff_bird 24.36 -> 24.56 dB, templeRing 23.38 -> 26.96 dB
+    with "flow" instead of "blend"."""
 
-    decoder: "sweep" (default; plane-sweep 3D CNN, generalises to new poses) or "fc" (the paper's).
-    size: long side in px of the training images (the scene is resized to it).
-    crop: side in px of the random training crops (sweep decoder).
-    backbone_size: side of the square ResNet-18 input; 0 = auto: 224 (the paper's) on CUDA, 64 on CPU.
-    batch_size: leave-one-out targets per optimisation step; an epoch visits every training frame once.
-    planes: depth planes of the sweep volume (uniform in disparity over the scene's depth bounds).
-    channels: feature channels of the sweep decoder's 3D CNN.
-    windows: box-filter sides (px) of the matching cost the sweep decoder sees, one input channel each.
-    extra_layers: additional 3x3x3 conv layers in the sweep decoder.
-    gate: the sweep decoder mixes its depth-resolved colour with the blend of ``fallback`` through a
-        learned per-pixel gate (used where the sweep finds no consistent depth).
-    gate_init: the gate's initial logit (0: half sweep, half fallback; negative: towards the fallback).
-    fallback: what the gate mixes the depth-resolved colour with: "flow" (default: the two sources aligned
-        to the target by optical flow, as the flow baseline does) or "blend" (the two sources as they are).
-        Measured (benchmarks/synthesis_quality.py): llff_bird 24.36 -> 24.56 dB, templeRing 23.38 -> 26.96 dB.
-    ssim_weight: loss = MSE + ssim_weight x (1 - SSIM) (7 px Gaussian window).
-    fc_side: long side in px of the fc decoder's output grid (upsampled to the target size).
-    context: False zeroes the LSTM output given to the decoder (ablation).
-    finetune_backbone: train ResNet-18 end to end (the paper); None = auto: yes on CUDA, no on CPU, where
-        the backbone's features are computed once and the rest of the network trains (CPU time budget).
-    holdout: positions (0-based, in the scene's frame order) of frames never used for training.
-    amp: mixed precision: "auto" (fp16 autocast with gradient scaling on CUDA, float32 on CPU), "fp16",
-        "bf16" (autocast, no scaling needed) or "off".
-    compile: ``torch.compile`` the decoder (and a fine-tuned backbone) in place; the checkpoint keys do
-        not change. Pays on GPU for long runs; its start-up cost exceeds the gain for short CPU runs.
-    """
-
-    decoder: str = "sweep"
-    epochs: int = 100
-    size: int = 128
-    crop: int = 64
-    backbone_size: int = 0
-    batch_size: int = 8
-    lr: float = 1e-3
-    planes: int = 24
-    channels: int = 8
-    windows: tuple[int, ...] = (5,)
-    extra_layers: int = 0
-    gate: bool = True
-    gate_init: float = 0.0
-    fallback: str = "flow"
-    ssim_weight: float = 0.1
-    fc_side: int = 48
-    context: bool = True
-    finetune_backbone: bool | None = None
-    seed: int = 0
-    device: str = "auto"
-    holdout: tuple[int, ...] = ()
-    checkpoint_every: int = 5
-    weights: str | None = None
-    amp: str = "auto"
-    compile: bool = False
+    decoder: str = option("sweep", "sweep: plane-sweep 3D CNN that generalises to new poses; fc: the paper's "
+                          "single linear layer (memorises its inputs)", choices=("sweep", "fc"))
+    epochs: int = option(100, "training epochs")
+    size: int = option(128, "long side in px of the training images (CPU-sane)")
+    crop: int = option(64, "side in px of the random training crops (sweep decoder)")
+    backbone_size: int = option(0, "ResNet-18 input side; 0 = auto: 224 (the paper's) on CUDA, 64 on CPU")
+    batch_size: int = option(8, "leave-one-out targets per step; an epoch visits every training frame once")
+    lr: float = option(1e-3, "Adam learning rate")
+    planes: int = option(24, "depth planes of the sweep volume (uniform in disparity over the depth bounds)")
+    channels: int = option(8, "feature channels of the sweep decoder's 3D CNN")
+    windows: tuple[int, ...] = option((5,), "box-filter sides (px, odd) of the matching cost the sweep "
+                                      "decoder sees, one input channel each")
+    extra_layers: int = option(0, "additional 3x3x3 conv layers in the sweep decoder")
+    gate: bool = option(True, "ablation: no learned per-pixel gate between the sweep's depth-resolved colour "
+                        "and the fallback")
+    gate_init: float = option(0.0, "the gate's initial logit (0: half sweep, half fallback; negative: "
+                              "towards the fallback)")
+    fallback: str = option("flow", "what the sweep decoder falls back to where depth is ambiguous: the two "
+                           "sources aligned by optical flow, or as they are", choices=("flow", "blend"))
+    ssim_weight: float = option(0.1, "loss = MSE + ssim_weight x (1 - SSIM) (7 px Gaussian window)")
+    fc_side: int = option(48, "long side in px of the fc decoder's output grid (upsampled to the target)")
+    context: bool = option(True, "ablation: zero the LSTM output given to the decoder")
+    finetune_backbone: bool | None = option(None, "train ResNet-18 end to end (the paper); auto: yes on "
+                                            "CUDA, no on CPU (features computed once)")
+    seed: int = option(0, "random seed (same seed, same result on CPU)")
+    device: str = option("auto", "where to train", choices=("auto", "cpu", "cuda"))
+    holdout: tuple[int, ...] = option((), "comma-separated frame positions (0-based) never used for "
+                                      "training, e.g. 3,10")
+    checkpoint_every: int = option(5, "epochs between checkpoints")
+    weights: str | None = option(None, "ResNet-18 ImageNet weights (torchvision's resnet18-f37072fd.pth); "
+                                 "auto: the torch hub cache copy if present, else random initialisation with "
+                                 "a warning; 'none': random initialisation, no warning")
+    amp: str = option("auto", "mixed precision (auto: fp16 with gradient scaling on CUDA, float32 on CPU)",
+                      choices=("auto", "off", "fp16", "bf16"))
+    compile: bool = option(False, "torch.compile the decoder in place (pays on GPU for long runs)")
 
     def __post_init__(self) -> None:
         self.holdout = tuple(int(i) for i in self.holdout)
