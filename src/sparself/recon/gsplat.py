@@ -141,25 +141,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     dev = torch.device("cuda")
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    pts, cols = _init_points(scene, cfg, rng)
-    means = torch.tensor(pts, device=dev)
-    # initial scale: distance to the 3 nearest neighbours (log), as in the reference implementation
-    with torch.no_grad():  # on up to 4096 sampled points, in chunks: a full cdist would not fit in memory
-        probe = means[torch.randperm(len(means), device=dev)[:4096]]
-        knn = torch.cat([torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
-                         for c in probe.split(256)]).clamp_min(1e-7)
-        s0 = float(torch.log(knn.mean()))
-    n = len(means)
-    sh0 = (torch.tensor(cols, device=dev) - 0.5) / 0.28209479177387814
-    K = (cfg.sh_degree + 1) ** 2
-    params = torch.nn.ParameterDict({
-        "means": torch.nn.Parameter(means),
-        "scales": torch.nn.Parameter(torch.full((n, 3), s0, device=dev)),
-        "quats": torch.nn.Parameter(torch.nn.functional.normalize(torch.randn(n, 4, device=dev), dim=-1)),
-        "opacities": torch.nn.Parameter(torch.logit(torch.full((n,), 0.1, device=dev))),
-        "sh0": torch.nn.Parameter(sh0[:, None, :]),
-        "shN": torch.nn.Parameter(torch.zeros(n, K - 1, 3, device=dev)),
-    })
+    params = _init_params(torch, scene, cfg, rng, dev)
     scene_scale = float(scene.scale())
     lrs = {"means": cfg.lr_means * scene_scale, "scales": cfg.lr_scales, "quats": cfg.lr_quats,
            "opacities": cfg.lr_opacities, "sh0": cfg.lr_sh0, "shN": cfg.lr_shN}
@@ -199,6 +181,30 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
             g["lr"] *= mean_decay
     log.info("gsplat: %d Gaussians after %d steps", len(params["means"]), cfg.steps)
     return GsplatRenderer(params, cfg.sh_degree, background)
+
+
+def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
+    """Gaussians at the SfM points (or sampled ones): means, log scales, rotations, opacities, SH colours."""
+    pts, cols = _init_points(scene, cfg, rng)
+    means = torch.tensor(pts, device=dev)
+    # initial scale: distance to the 3 nearest neighbours (log), as in the reference implementation
+    with torch.no_grad():  # on up to 4096 sampled points, in chunks: a full cdist would not fit in memory
+        probe = means[torch.randperm(len(means), device=dev)[:4096]]
+        knn = torch.cat([torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
+                         for c in probe.split(256)]).clamp_min(1e-7)
+        s0 = float(torch.log(knn.mean()))
+    n = len(means)
+    sh0 = (torch.tensor(cols, device=dev) - 0.5) / 0.28209479177387814
+    K = (cfg.sh_degree + 1) ** 2
+    params = torch.nn.ParameterDict({
+        "means": torch.nn.Parameter(means),
+        "scales": torch.nn.Parameter(torch.full((n, 3), s0, device=dev)),
+        "quats": torch.nn.Parameter(torch.nn.functional.normalize(torch.randn(n, 4, device=dev), dim=-1)),
+        "opacities": torch.nn.Parameter(torch.logit(torch.full((n,), 0.1, device=dev))),
+        "sh0": torch.nn.Parameter(sh0[:, None, :]),
+        "shN": torch.nn.Parameter(torch.zeros(n, K - 1, 3, device=dev)),
+    })
+    return params
 
 
 def _ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
