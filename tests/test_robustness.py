@@ -20,6 +20,7 @@ from test_bad_input import listing, make_scene, need, write_posed
 # one thread everywhere: the in-process and subprocess runs must reduce in the same order to agree bit for bit
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 TRAIN = ["--size", "32", "--crop", "16", "--device", "cpu", "--backbone-size", "32", "--seed", "3"]
+DENSIFY = TRAIN[2:]  # densify trains at the scene's (or --out-size's) size
 
 
 def cli(*argv) -> list[str]:
@@ -116,7 +117,7 @@ def test_same_seed_twice_gives_byte_identical_images(scene, tmp_path, capsys):
     for k in range(2):
         out = tmp_path / f"dense{k}"
         code = main([str(a) for a in ("densify", scene, "--out", out, "--epochs", "1", "--n-mid", "2",
-                                      "--n-extra", "1", *TRAIN, "-q")])
+                                      "--n-extra", "1", *DENSIFY, "-q")])
         assert code == 0, capsys.readouterr().err
         outs.append(out)
     files = sorted(str(p.relative_to(outs[0])) for p in outs[0].rglob("*") if p.is_file())
@@ -136,7 +137,7 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
     need("densify")
     res = tmp_path / "res"
     res.mkdir()
-    argv = cli("densify", scene, "--out", res / "out", "--epochs", "200", "--n-mid", "2", "--n-extra", "1", *TRAIN)
+    argv = cli("densify", scene, "--out", res / "out", "--epochs", "200", "--n-mid", "2", "--n-extra", "1", *DENSIFY)
     proc = subprocess.Popen(argv, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     t0 = time.monotonic()
     # wait until training writes into the temporary output (a hidden .out.tmp-* folder with a run log)
