@@ -14,6 +14,7 @@ import pytest
 from sparself.cli import build_parser
 from sparself.evaluate import EvalConfig
 from sparself.model.decoders import DECODERS
+from sparself.plan import PlanConfig
 from sparself.train import TrainConfig
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "sparself"
@@ -53,11 +54,13 @@ def _dests(p) -> set[str]:
     return {a.dest for a in p._actions}
 
 
-def test_every_training_option_is_on_the_command_line_of_train_densify_and_evaluate():
+def test_every_training_and_plan_option_is_on_the_command_line():
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     assert fields <= _dests(_subparser("train"))
     assert fields - {"size"} <= _dests(_subparser("densify"))  # densify trains at --out-size
     assert "--size" not in _subparser("densify")._option_string_actions
+    plan = {f.name for f in dataclasses.fields(PlanConfig)}
+    assert plan <= _dests(_subparser("plan")) and plan <= _dests(_subparser("densify"))
     # evaluate sets seed, size, epochs and holdout itself; the rest reaches the network
     assert fields - {"seed", "size", "epochs", "holdout"} <= _dests(_subparser("evaluate"))
 

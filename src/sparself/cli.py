@@ -111,20 +111,18 @@ _COMMANDS.append(_add_info)
 
 
 def _plan_options(p: argparse.ArgumentParser) -> None:
-    """The novel-pose plan's options, shared by `plan` and `densify`."""
-    p.add_argument("--n-mid", type=int, default=8, help="midpoints between consecutive views (default 8)")
-    p.add_argument("--n-extra", type=int, default=2, help="extrapolated poses past the ends (default 2)")
-    p.add_argument("--order", choices=["auto", "capture", "nearest"], default="auto",
-                   help="which views are consecutive: capture order, a nearest-neighbour path, or auto "
-                        "(capture order unless it walks 1.5x further than the nearest-neighbour path)")
-    p.add_argument("--gaps", choices=["even", "largest"], default="even",
-                   help="which gaps get midpoints: spread evenly (default) or the widest ones")
+    """The novel-pose plan's options (built from PlanConfig), shared by `plan` and `densify`."""
+    from .options import add_options
+    from .plan import PlanConfig
+
+    add_options(p, PlanConfig)
 
 
 def _plan_config(args):
+    from .options import from_args
     from .plan import PlanConfig
 
-    return PlanConfig(n_mid=args.n_mid, n_extra=args.n_extra, order=args.order, gaps=args.gaps)
+    return from_args(PlanConfig, args)
 
 
 def _add_plan(sub) -> None:

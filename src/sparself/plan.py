@@ -43,6 +43,7 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 from .geometry import Pose, interpolate_pose
+from .options import option
 from .outputs import atomic_file
 from .scene import Frame, Scene
 
@@ -55,22 +56,18 @@ PLAN_VERSION = 1
 
 @dataclass
 class PlanConfig:
-    """How many novel poses to plan and where.
+    """How many novel poses to plan and where (each field's help is its documentation; the order rules
+    are in the module docstring)."""
 
-    n_mid: midpoints between consecutive views (the paper: 8).
-    n_extra: extrapolated poses beyond the ends of the path (the paper: 2).
-    t_mid: interpolation parameter of a midpoint (0.5).
-    t_extra: extrapolation parameter past the pair's second view (1.2).
-    order: "auto" | "capture" | "nearest" (see the module docstring).
-    gaps: "even" | "largest": which of the N - 1 gaps receive the midpoints.
-    """
-
-    n_mid: int = 8
-    n_extra: int = 2
-    t_mid: float = 0.5
-    t_extra: float = 1.2
-    order: str = "auto"
-    gaps: str = "even"
+    n_mid: int = option(8, "midpoints between consecutive views (the paper: 8)")
+    n_extra: int = option(2, "extrapolated poses past the ends of the path (the paper: 2)")
+    t_mid: float = option(0.5, "interpolation parameter of a midpoint")
+    t_extra: float = option(1.2, "extrapolation parameter past the pair's second view")
+    order: str = option("auto", "which views are consecutive: capture order, a nearest-neighbour path, or "
+                        "auto (capture order unless it walks 1.5x further than the nearest-neighbour path)",
+                        choices=("auto", "capture", "nearest"))
+    gaps: str = option("even", "which gaps get midpoints: spread evenly or the widest ones",
+                       choices=("even", "largest"))
 
     def validate(self) -> None:
         if int(self.n_mid) != self.n_mid or self.n_mid < 0:
