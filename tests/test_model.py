@@ -266,3 +266,24 @@ def test_fused_source_states_equal_the_step_by_step_lstm_values_and_gradients():
         assert torch.allclose(a, b, atol=1e-9, rtol=1e-7)
     H, C = net.source_states(x[:0])
     assert H.shape == (1, 2, 512) and not H.any() and not C.any()
+
+
+def test_queries_leave_one_out_novel_and_crops():
+    """The query types training and synthesis share: a leave-one-out target never reads itself, novel
+    queries sit after every source at or before them, a crop shifts the principal point by its corner."""
+    from planescene import small_plane_scene
+    from sparself.model.query import Sources, bracket, leave_one_out, novel_queries, render
+
+    src = Sources.from_scene(small_plane_scene(5)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0), np.array([2.0, 3.0]))
+    loo = leave_one_out(src)
+    assert all(t not in s and len(s) == 2 for t, s in enumerate(loo.sets))
+    assert loo.sets[0] == (1, 2) and loo.sets[2] == (1, 3) and loo.n_before.tolist() == [0, 1, 2, 3, 4]
+    sel = loo.select([3, 1])
+    assert sel.sets == [loo.sets[3], loo.sets[1]] and torch.equal(sel.K[0], src.K[3])
+    Kc = sel.crop_camera(0, (2, 5, 8, 8))
+    assert torch.allclose(Kc[:2, 2], src.K[3][:2, 2] - torch.tensor([5.0, 2.0]))
+    q = novel_queries(src, src.K[:2].numpy(), src.w2c[:2].numpy(), src.vectors[:2].numpy(), [1.5, 4.2], src.hw)
+    assert q.n_before.tolist() == [2, 5] and q.sets == [bracket(src.positions, 1.5), (4, 3)]
+    net = _net(FCDecoder((4, 6)))
+    out = render(net, src, q)  # the fc decoder renders its grid, resized to the queries' size
+    assert out.shape == (2, 3, *src.hw)
