@@ -266,6 +266,17 @@ def _train_config(args, skip: tuple[str, ...] = ()):
     return from_args(TrainConfig, args, skip)
 
 
+def _export_options(p: argparse.ArgumentParser) -> None:
+    """How the dense scene is written (DensifyConfig's export fields), shared by `synthesize` and `densify`."""
+    import dataclasses
+
+    from .options import add_options
+    from .pipeline import DensifyConfig
+
+    export = ("downscaled",)
+    add_options(p, DensifyConfig, skip=tuple(f.name for f in dataclasses.fields(DensifyConfig) if f.name not in export))
+
+
 def _add_train(sub) -> None:
     p = sub.add_parser(
         "train", help="train the CNN–LSTM view synthesizer on a posed scene",
@@ -302,6 +313,7 @@ def _add_synthesize(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="folder for the densified scene")
     p.add_argument("--scene", type=Path, default=None, help="source scene (default: the one the run used)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    _export_options(p)
     _common(p)
     p.set_defaults(func=_run_synthesize)
 
@@ -309,7 +321,8 @@ def _add_synthesize(sub) -> None:
 def _run_synthesize(args) -> int:
     from .synthesize import synthesize_plan
 
-    synthesize_plan(args.run, args.plan, args.out, scene_path=args.scene, overwrite=args.overwrite)
+    synthesize_plan(args.run, args.plan, args.out, scene_path=args.scene, overwrite=args.overwrite,
+                    downscaled=args.downscaled)
     return 0
 
 
@@ -328,6 +341,7 @@ def _add_densify(sub) -> None:
                    help="long side in px of the written scene and of training (default: as read)")
     _train_options(p, skip=("size",))
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    _export_options(p)
     _common(p)
     p.set_defaults(func=_run_densify)
 
@@ -336,7 +350,8 @@ def _run_densify(args) -> int:
     from .pipeline import DensifyConfig, densify
 
     densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=_plan_config(args),
-                                                 out_size=args.out_size, overwrite=args.overwrite))
+                                                 out_size=args.out_size, overwrite=args.overwrite,
+                                                 downscaled=args.downscaled))
     return 0
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from . import io as sio
 from .errors import InputError
+from .options import option
 from .outputs import atomic_dir, check_output_dir
 from .plan import PlanConfig, plan_sequence, save_plan
 from .plot import plot_cameras
@@ -32,6 +33,7 @@ class DensifyConfig:
     out_size: int | None = None
     overwrite: bool = False
     keep_run: bool = True
+    downscaled: bool = option(True, "skip the images_2/4/8 copies beside images/ (large scenes)")
 
 
 def read_input(path: Path, cfg: DensifyConfig) -> Scene:
@@ -70,7 +72,9 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         run = train(scene, tmp / "run", tcfg)
         images = synthesize(run, scene, targets)
         dense = densify_scene(scene, targets, images)
-        sio.write_scene_into(dense, tmp / "scene")
+        sio.write_scene_into(dense, tmp / "scene", dense=sio.DenseInfo(
+            "../run" if cfg.keep_run else None, "../plan.json", tuple(scene.frames[i].name for i in tcfg.holdout),
+            cfg.downscaled))
         # the plan and a camera plot beside the scene, so users see where the new views are
         save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
         plot_cameras(scene, planned=targets, path=tmp / "cameras.png",

@@ -81,8 +81,9 @@ def densify_scene(scene: Scene, targets: list[Frame], images: np.ndarray) -> Sce
 
 
 def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, scene_path: Path | str | None = None,
-                    overwrite: bool = False) -> Scene:
-    """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene."""
+                    overwrite: bool = False, downscaled: bool = True) -> Scene:
+    """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene.
+    downscaled: also write the ``images_2/4/8`` copies."""
     check_output_dir(Path(out), overwrite)  # refuse a bad --out before loading anything
     run = load_run(run_path)
     src_path = scene_path or run.meta.scene
@@ -96,4 +97,5 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))
     dense = densify_scene(scene, targets, synthesize(run, scene, targets))
-    return sio.write_scene(dense, Path(out), overwrite=overwrite)
+    return sio.write_scene(dense, Path(out), overwrite=overwrite,
+                           dense=sio.DenseInfo(str(run_path), str(plan), downscale=downscaled))

@@ -9,6 +9,10 @@ COLMAP, gsplat, nerfstudio and LLFF/NeRF loaders read unchanged::
     out_dir/sparse/0/cameras.bin ...     COLMAP binary model (cameras, images, points3D; + rigs, frames)
     out_dir/poses_bounds.npy             LLFF
     out_dir/transforms.json              nerfstudio (+ sparse_pc.ply when the scene has points)
+
+A scene with synthesized frames (a dense scene) also gets, see :mod:`sparself.io.dense`: names in an order
+that keeps synthesized frames off every 8th position, ``train/val/test_list.txt`` (+ ``sparse/0/test.txt``),
+split lists in ``transforms.json``, ``sparself.json``, and ``images_2/4/8`` copies.
 """
 
 from __future__ import annotations
@@ -23,12 +27,14 @@ from typing import Sequence
 from ..errors import InputError
 from ..outputs import atomic_dir
 from ..scene import Frame, Scene, image_size_of, needs_conversion, save_image
+from . import dense as _dense
 from .colmap import find_model_dir, read_colmap, write_colmap
+from .dense import DenseInfo
 from .llff import read_llff, write_llff
 from .middlebury import find_par_file, read_middlebury, write_middlebury
 from .nerfstudio import read_nerfstudio, write_nerfstudio
 
-__all__ = ["read_scene", "write_scene", "write_scene_into", "detect_format", "read_colmap", "write_colmap",
+__all__ = ["DenseInfo", "read_scene", "write_scene", "write_scene_into", "detect_format", "read_colmap", "write_colmap",
            "read_llff", "write_llff", "read_nerfstudio", "write_nerfstudio", "read_middlebury",
            "write_middlebury", "FORMATS"]
 
@@ -78,19 +84,36 @@ def read_scene(path: Path, images: Path | None = None) -> Scene:
     path = Path(path)
     fmt = detect_format(path)
     if fmt == "colmap":
-        return read_colmap(path.parent if path.is_file() else path, images)
-    if fmt == "llff":
-        return read_llff(path, images)
-    if fmt == "nerfstudio":
-        return read_nerfstudio(path)
-    return read_middlebury(path)
+        scene = read_colmap(path.parent if path.is_file() else path, images)
+    elif fmt == "llff":
+        scene = read_llff(path, images)
+    elif fmt == "nerfstudio":
+        scene = read_nerfstudio(path)
+    else:
+        return read_middlebury(path)
+    synthetic = _dense.read_synthetic_names(_scene_folder(path))
+    return _dense.mark_synthetic(scene, synthetic) if synthetic else scene
+
+
+def _scene_folder(path: Path) -> Path:
+    """The folder a dense scene's ``sparself.json`` would be in, for a path given to :func:`read_scene`."""
+    folder = path if path.is_dir() else path.parent
+    if folder.name == "0" and folder.parent.name == "sparse":
+        return folder.parent.parent
+    return folder.parent if folder.name == "sparse" else folder
+
+
+def _same_format(a: Path, b: Path) -> bool:
+    jpeg = (".jpg", ".jpeg")
+    sa, sb = Path(a).suffix.lower(), Path(b).suffix.lower()
+    return sa == sb or (sa in jpeg and sb in jpeg)
 
 
 def _write_image(frame: Frame, scene: Scene, i: int, dst: Path, link: bool) -> None:
     cam = scene.camera(i)
     dst.parent.mkdir(parents=True, exist_ok=True)
     if frame.image is None and frame.path is not None and image_size_of(frame.path) == (cam.width, cam.height) \
-            and Path(frame.path).suffix.lower() == dst.suffix.lower() and not needs_conversion(frame.path):
+            and _same_format(frame.path, dst) and not needs_conversion(frame.path):
         if link:
             os.symlink(Path(frame.path).resolve(), dst)
         else:
@@ -102,12 +125,14 @@ def _write_image(frame: Frame, scene: Scene, i: int, dst: Path, link: bool) -> N
 
 
 def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMATS, *,
-                     images: str = "copy", text: bool = False) -> Scene:
+                     images: str = "copy", text: bool = False, dense: DenseInfo | None = None) -> Scene:
     """Write the scene into an existing folder (NOT atomic: the caller gives an ``outputs.atomic_dir``).
 
     images: "copy" (original bytes when the size matches, else re-encoded at the camera size),
             "link" (symlinks to the originals where possible), or "none" (poses only).
     text: also write the COLMAP model as ``.txt`` files beside the ``.bin`` ones in ``sparse/0``.
+    dense: provenance, user hold-out and options of a scene with synthesized frames (default
+           :class:`DenseInfo`); such a scene is renamed and ordered by :func:`sparself.io.dense.layout`.
     -> the scene as written (frame paths pointing into ``folder/images``).
     """
     folder = Path(folder)
@@ -120,6 +145,9 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise InputError(f"frame names must be unique; repeated: {', '.join(dup)}")
+    split, sources, dense = None, [], dense or DenseInfo()
+    if any(f.synthetic for f in scene.frames):
+        scene, split, sources = _dense.layout(scene, dense)
     new_frames = []
     for i, f in enumerate(scene.frames):
         dst = folder / "images" / f.name
@@ -128,28 +156,37 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
         new_frames.append(replace(f, path=dst if images != "none" else f.path, image=None if images != "none"
                                   else f.image))
     written = replace(scene, frames=new_frames, source=folder, meta=dict(scene.meta))
-    if "colmap" in formats:
-        write_colmap(written, folder / "sparse" / "0")
-        if text:
-            write_colmap(written, folder / "sparse" / "0", text=True)
-    if "llff" in formats:
-        write_llff(written, folder)
-    if "nerfstudio" in formats:
-        write_nerfstudio(written, folder)
-    if "middlebury" in formats:
-        write_middlebury(written, folder / "scene_par.txt")
+    _write_formats(written, folder, formats, text, split)
+    if split is not None:
+        _dense.write_split_files(folder, split)
+        _dense.write_sparself_json(folder, written, split, sources, dense)
+        if dense.downscale and images != "none":
+            _dense.write_downscaled(folder, written)
     return written
 
 
+def _write_formats(scene: Scene, folder: Path, formats: Sequence[str], text: bool, split) -> None:
+    if "colmap" in formats:
+        write_colmap(scene, folder / "sparse" / "0")
+        if text:
+            write_colmap(scene, folder / "sparse" / "0", text=True)
+    if "llff" in formats:
+        write_llff(scene, folder)
+    if "nerfstudio" in formats:
+        write_nerfstudio(scene, folder, split=split)
+    if "middlebury" in formats:
+        write_middlebury(scene, folder / "scene_par.txt")
+
+
 def write_scene(scene: Scene, out_dir: Path, formats: Sequence[str] = FORMATS, *, overwrite: bool = False,
-                images: str = "copy", text: bool = False) -> Scene:
+                images: str = "copy", text: bool = False, dense: DenseInfo | None = None) -> Scene:
     """Write ``images/`` + ``sparse/0/`` + ``poses_bounds.npy`` + ``transforms.json`` to ``out_dir``,
     atomically (a temporary sibling renamed at the end, via ``outputs.atomic_dir``: a failure leaves
     nothing). An existing non-empty ``out_dir`` is refused unless ``overwrite``.
     -> the scene as written (frame paths into ``out_dir/images``)."""
     out_dir = Path(out_dir)
     with atomic_dir(out_dir, overwrite) as tmp:
-        written = write_scene_into(scene, tmp, formats, images=images, text=text)
+        written = write_scene_into(scene, tmp, formats, images=images, text=text, dense=dense)
     # paths were into the temporary folder, which is now out_dir
     for f in written.frames:
         if f.path is not None and Path(f.path).is_relative_to(tmp):

@@ -7,6 +7,7 @@ conversion happens here; only ordering (frames by image name = capture order) an
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,19 @@ from ._common import check_finite, find_image, scene_cameras_dedup
 log = logging.getLogger(__name__)
 
 _MODEL_FILES = ("cameras", "images", "points3D")
+
+
+@dataclass(frozen=True)
+class Observations:
+    """One image's 2D-3D correspondences (its SfM track elements), kept in ``Scene.meta['observations']``
+    by frame name so that a written model keeps them.
+
+    point: (M,) indices into ``Scene.points``; xy: (M, 2) pixel positions (COLMAP convention) in an image
+    of ``size`` = (W, H), scaled when the camera was resized."""
+
+    point: np.ndarray
+    xy: np.ndarray
+    size: tuple[int, int]
 
 
 def find_model_dir(path: Path) -> Path | None:
@@ -134,18 +148,35 @@ def scene_from_reconstruction(rec, image_dir: Path | None, *, source: Path | Non
         frames.append(Frame(name=img.name, pose=Pose(q, t), camera_id=int(img.camera_id), path=path))
     for i, f in enumerate(frames):
         f.index = float(i)
-    points, colors = None, None
+    points, colors, obs = None, None, {}
     if rec.num_points3D():
-        pts = [p for _, p in sorted(rec.points3D.items())]  # by id: stable order
-        points = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
-        colors = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
+        ids = sorted(rec.points3D)  # by id: stable order
+        points = np.array([rec.points3D[i].xyz for i in ids], dtype=np.float64).reshape(-1, 3)
+        colors = np.array([rec.points3D[i].color for i in ids], dtype=np.uint8).reshape(-1, 3)
         keep = np.all(np.isfinite(points), axis=1)
         points, colors = points[keep], colors[keep]
+        obs = _observations(rec, {pid: k for k, pid in enumerate(np.asarray(ids)[keep].tolist())})
     scene = Scene(cameras=cams, frames=frames, points=points, source=source,
-                  meta={"format": "colmap", "unregistered": unregistered})
+                  meta={"format": "colmap", "unregistered": unregistered, "observations": obs})
     if colors is not None:
         scene.meta["point_colors"] = colors
     return scene_cameras_dedup(scene)
+
+
+def _observations(rec, point_index: dict[int, int]) -> dict[str, Observations]:
+    """Each registered image's observations of the kept points, by image name."""
+    out = {}
+    for img in rec.images.values():
+        if not img.has_pose:
+            continue
+        pairs = [(point_index[p.point3D_id], p.xy) for p in img.get_observation_points2D()
+                 if p.point3D_id in point_index]
+        if pairs:
+            cam = rec.cameras[img.camera_id]
+            out[img.name] = Observations(np.array([k for k, _ in pairs], dtype=np.int64),
+                                         np.array([xy for _, xy in pairs], dtype=np.float64).reshape(-1, 2),
+                                         (int(cam.width), int(cam.height)))
+    return out
 
 
 def read_colmap(path: Path, images: Path | None = None, *, require_images: bool = True) -> Scene:
@@ -173,24 +204,66 @@ def read_colmap(path: Path, images: Path | None = None, *, require_images: bool 
 
 def reconstruction_from_scene(scene: Scene):
     """A pycolmap.Reconstruction with the scene's cameras, frames (image ids 1..N in frame order) and
-    points (without tracks: COLMAP, gsplat and nerfstudio read track-less points3D)."""
+    points with tracks: a frame keeps its SfM observations (``meta['observations']``), any other frame
+    (a synthesized view, or a scene read without tracks) observes the points that project into it."""
     import pycolmap
 
     rec = pycolmap.Reconstruction()
     for cid, cam in sorted(scene.cameras.items()):
         rec.add_camera_with_trivial_rig(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
                                                         params=list(cam.params), camera_id=int(cid)))
+    points = np.zeros((0, 3)) if scene.points is None else np.asarray(scene.points, dtype=np.float64)
+    tracks: list[list[tuple[int, int]]] = [[] for _ in range(len(points))]
+    extra: list[np.ndarray] = []
     for i, f in enumerate(scene.frames):
         qw, qx, qy, qz = f.pose.qvec
         T = pycolmap.Rigid3d(pycolmap.Rotation3d(np.array([qx, qy, qz, qw])), f.pose.tvec.reshape(3, 1))
-        rec.add_image_with_trivial_frame(pycolmap.Image(name=f.name, camera_id=int(f.camera_id), image_id=i + 1), T)
-    if scene.points is not None and len(scene.points):
-        colors = scene.meta.get("point_colors")
-        if colors is None or len(colors) != len(scene.points):
-            colors = np.full((len(scene.points), 3), 128, dtype=np.uint8)
-        for p, c in zip(np.asarray(scene.points, dtype=np.float64), np.asarray(colors, dtype=np.uint8)):
-            rec.add_point3D(p, pycolmap.Track(), c)
+        idx, xy = frame_observations(scene, i, rec.cameras[f.camera_id])
+        if not len(idx) and len(points):
+            # a view that sees none of the points (gsplat's depth loss needs one per image): a point on
+            # its optical axis at the scene's typical depth, observed at the principal point
+            d = float(np.sqrt(np.prod(scene.depth_bounds())))
+            extra.append(f.pose.R.T @ (np.array([0.0, 0.0, d]) - f.pose.tvec))
+            tracks.append([])
+            idx = np.array([len(tracks) - 1])
+            xy = np.asarray(rec.cameras[f.camera_id].img_from_cam(np.array([[0.0, 0.0, d]]))).reshape(1, 2)
+        for j, k in enumerate(idx):
+            tracks[k].append((i + 1, j))
+        pts2d = pycolmap.Point2DList([pycolmap.Point2D(np.asarray(p, dtype=np.float64)) for p in xy])
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=f.name, camera_id=int(f.camera_id), image_id=i + 1,
+                                                        points2D=pts2d), T)
+    colors = scene.meta.get("point_colors")
+    if colors is None or len(colors) != len(points):
+        colors = np.full((len(points), 3), 128, dtype=np.uint8)
+    colors = np.concatenate([np.asarray(colors, dtype=np.uint8), np.full((len(extra), 3), 128, np.uint8)])
+    points = np.concatenate([points, np.reshape(extra, (-1, 3))])
+    for p, c, els in zip(points, colors, tracks):
+        track = pycolmap.Track()
+        for image_id, point2d in els:
+            track.add_element(image_id, point2d)
+        rec.add_point3D(p, track, c)
     return rec
+
+
+def frame_observations(scene: Scene, i: int, pycam) -> tuple[np.ndarray, np.ndarray]:
+    """(point indices, (M, 2) pixels) that frame i observes: its stored SfM observations, scaled to its
+    camera, else the points in front of it that project inside the image (``pycam``'s model, distortion
+    included); possibly none."""
+    f, cam = scene.frames[i], scene.camera(i)
+    if scene.points is None or not len(scene.points):
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    stored = (scene.meta.get("observations") or {}).get(f.name)
+    if stored is not None and not f.synthetic and len(stored.point) and stored.point.max() < len(scene.points):
+        s = np.array([cam.width / stored.size[0], cam.height / stored.size[1]])
+        return stored.point, stored.xy * s
+    X = np.asarray(scene.points, dtype=np.float64) @ f.pose.R.T + f.pose.tvec
+    front = np.flatnonzero(X[:, 2] > 1e-9)
+    if not len(front):
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    uv = np.asarray(pycam.img_from_cam(X[front]), dtype=np.float64).reshape(-1, 2)
+    ok = np.all(np.isfinite(uv), axis=1)
+    inside = ok & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    return front[inside], uv[inside]
 
 
 def write_colmap(scene: Scene, model_dir: Path, *, text: bool = False) -> Path:

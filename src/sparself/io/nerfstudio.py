@@ -119,7 +119,7 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
             img_path = img
         cams.append(_camera({**glob_keys, **fr}, img_path, where))
         name = Path(str(fr["file_path"])).name if img_path is None else img_path.name
-        frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path))
+        frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path, synthetic=fr.get("synthetic") is True))
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
@@ -145,30 +145,36 @@ def _intrinsics(cam: Camera) -> dict:
     return d
 
 
-def transforms_dict(scene: Scene, image_prefix: str = "images/") -> dict:
-    """The ``transforms.json`` content: global intrinsics when the scene has one camera, else per frame."""
+def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None) -> dict:
+    """The ``transforms.json`` content: global intrinsics when the scene has one camera, else per frame;
+    each frame flagged ``"synthetic"``; with a :class:`sparself.io.dense.Split`, the ``train_filenames``,
+    ``val_filenames`` and ``test_filenames`` lists (nerfstudio needs all three when one is present)."""
     order = frame_name_order(scene)
     one = len({scene.frames[i].camera_id for i in order}) == 1
     out: dict = dict(_intrinsics(scene.camera(order[0]))) if one else {}
     frames = []
     for i in order:
         f = scene.frames[i]
-        fr = {"file_path": image_prefix + f.name, "transform_matrix": (f.pose.c2w() @ _GL).tolist()}
+        fr = {"file_path": image_prefix + f.name, "transform_matrix": (f.pose.c2w() @ _GL).tolist(),
+              "synthetic": bool(f.synthetic)}
         if not one:
             fr.update(_intrinsics(scene.camera(i)))
         frames.append(fr)
     out["frames"] = frames
     if scene.points is not None and len(scene.points):
         out["ply_file_path"] = "sparse_pc.ply"
+    if split is not None:
+        for key in ("train", "val", "test"):
+            out[f"{key}_filenames"] = [image_prefix + n for n in getattr(split, key)]
     return out
 
 
-def write_nerfstudio(scene: Scene, out_dir: Path, image_prefix: str = "images/") -> Path:
+def write_nerfstudio(scene: Scene, out_dir: Path, image_prefix: str = "images/", split=None) -> Path:
     """Write ``out_dir/transforms.json`` (and ``sparse_pc.ply`` when the scene has points, which
     nerfstudio's splatfacto uses to initialise). Not atomic by itself: use ``outputs.atomic_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    d = transforms_dict(scene, image_prefix)
+    d = transforms_dict(scene, image_prefix, split)
     if "ply_file_path" in d:
         _write_ply(out_dir / d["ply_file_path"], np.asarray(scene.points), scene.meta.get("point_colors"))
     out = out_dir / FILENAME

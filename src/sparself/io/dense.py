@@ -1,0 +1,211 @@
+"""What a densified scene carries beyond its frames, so that trainers never test on a synthesized view.
+
+* **Split.** Val/test = the real photos the user held out, else every 8th real photo in index order
+  (the first, the 9th, ...: what ``llffhold=8`` picks on the original capture). Every synthesized frame
+  is in train. Written as ``transforms.json`` lists, COLMAP-side list files and ``sparself.json``.
+* **Order that position-based loaders cannot get wrong.** gsplat (``test_every=8``), NeRF's ``llffhold=8``,
+  3DGS' ``--eval`` and nerfstudio's ``interval`` mode test the images at sorted positions 0, 8, 16, ...
+  :func:`safe_order` keeps index order but moves a synthesized frame that would land on such a position
+  behind the next real photo; names get a rank prefix (``0007_novel_0003.50.jpg``) so that sorting by
+  name gives exactly that order, for any index (negative ones included).
+* **Downscaled copies** ``images_2/4/8`` at ``(w // f, h // f)``: nerfstudio's default ``floor`` rounding
+  and gsplat's ``cam.width // factor``; LLFF reads whatever size it finds and scales the focal by 1/f.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..scene import Scene, load_image, resize_image, save_image
+
+log = logging.getLogger(__name__)
+
+EVERY = 8  # the hold-out period of gsplat, NeRF/LLFF, 3DGS and nerfstudio's interval mode
+FACTORS = (2, 4, 8)
+SPARSELF_JSON = "sparself.json"
+FORMAT, VERSION = "sparself-scene", 1
+LIST_FILES = {"train": "train_list.txt", "val": "val_list.txt", "test": "test_list.txt"}  # nerfstudio colmap
+_JPEG = (".jpg", ".jpeg")
+
+
+@dataclass(frozen=True)
+class DenseInfo:
+    """Where a dense scene came from and what to write with it.
+
+    holdout: names of real frames the user held out (they become val/test); empty = every 8th real photo.
+    downscale: write ``images_2/4/8`` copies (False for large scenes).
+    """
+
+    run: str | None = None
+    plan: str | None = None
+    holdout: tuple[str, ...] = ()
+    downscale: bool = True
+
+
+@dataclass(frozen=True)
+class Split:
+    """Image names per split (as written in ``images/``) and the rule that chose val/test."""
+
+    train: tuple[str, ...]
+    val: tuple[str, ...]
+    test: tuple[str, ...]
+    rule: str
+    positional_safe: bool = True  # every 8th sorted position holds a real photo
+
+
+def n_test_positions(n: int, every: int = EVERY) -> int:
+    """How many of n sorted images a position-based loader tests: positions 0, every, 2 every, ..."""
+    return -(-n // every)
+
+
+def safe_order(synthetic: Sequence[bool], every: int = EVERY) -> list[int] | None:
+    """A written order (a permutation of the frames, given in index order) that puts a real frame at every
+    position ``p % every == 0``; None when there are too few real frames for that.
+
+    It follows index order and departs from it only where it must: a synthesized frame due at a test
+    position waits behind the next real one, and a real frame is kept back for a later test position
+    when the remaining real frames would otherwise run short. Reals and synthesized frames each keep
+    their own relative order."""
+    n = len(synthetic)
+    real = [i for i in range(n) if not synthetic[i]]
+    synth = [i for i in range(n) if synthetic[i]]
+    if len(real) < n_test_positions(n, every):
+        return None
+    out: list[int] = []
+    r = s = 0
+    for p in range(n):
+        tests_after = n_test_positions(n, every) - (p // every + 1)
+        real_next = s == len(synth) or (r < len(real) and real[r] < synth[s])
+        spare_real = len(real) - r - 1 >= tests_after
+        if p % every == 0 or (real_next and spare_real) or s == len(synth):
+            out.append(real[r])
+            r += 1
+        else:
+            out.append(synth[s])
+            s += 1
+    return out
+
+
+def rank_names(names: Sequence[str], exts: Sequence[str]) -> list[str]:
+    """``0007_<stem><ext>``: a zero-padded rank prefix, so that names sort in the given order."""
+    width = max(4, len(str(len(names) - 1)))
+    return [f"{k:0{width}d}_{Path(n).stem.replace('/', '_')}{e}" for k, (n, e) in enumerate(zip(names, exts))]
+
+
+def llff_ext(name: str) -> str:
+    """The extension a real photo is written with: NeRF's loader lists only ``JPG``/``jpg``/``png`` files,
+    so ``.jpeg`` becomes ``.jpg`` (same bytes) and other formats are re-encoded as ``.png``."""
+    ext = Path(name).suffix
+    if ext in (".jpg", ".JPG", ".png"):
+        return ext
+    return ".jpg" if ext.lower() in _JPEG else ".png"
+
+
+def synthetic_ext(real_names: Sequence[str]) -> str:
+    """Synthesized views in the photos' family: JPEG (quality 95) when the first photo is JPEG, else PNG
+    (gsplat and NeRF look at the first file's extension)."""
+    return ".jpg" if real_names and Path(real_names[0]).suffix.lower() in _JPEG else ".png"
+
+
+def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
+    """The dense scene as written: frames in :func:`safe_order`, renamed with rank prefixes; its split;
+    and each written frame's original name. Observations in ``meta`` follow the renaming."""
+    frames = sorted(scene.frames, key=lambda f: f.index)
+    flags = [f.synthetic for f in frames]
+    order = safe_order(flags)
+    safe = order is not None
+    if order is None:
+        log.warning("%d real and %d synthesized views: too few real photos to fill every %dth position, so "
+                    "gsplat/NeRF/3DGS position-based test sets would include synthesized views; use their "
+                    "split options (see the README, 'Use the dense scene with ...')",
+                    flags.count(False), flags.count(True), EVERY)
+        order = list(range(len(frames)))
+    frames = [frames[i] for i in order]
+    real_names = [f.name for f in frames if not f.synthetic]
+    syn = synthetic_ext(real_names)
+    names = rank_names([f.name for f in frames], [syn if f.synthetic else llff_ext(f.name) for f in frames])
+    held = set(info.holdout)
+    unknown = held - set(real_names)
+    if unknown:
+        raise ValueError(f"holdout names not among the real frames: {sorted(unknown)}")
+    rule = "the real photos held out by the user"
+    if not held:
+        real_by_index = sorted((f for f in frames if not f.synthetic), key=lambda f: f.index)
+        held = {f.name for f in real_by_index[::EVERY]}
+        rule = f"every {EVERY}th real photo in capture order, from the first"
+    test = [n for f, n in zip(frames, names) if f.name in held]
+    train = tuple(n for n in names if n not in set(test))
+    split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
+    renamed = [replace(f, name=n) for f, n in zip(frames, names)]
+    meta = dict(scene.meta)
+    obs = meta.get("observations")
+    if obs:
+        meta["observations"] = {n: obs[f.name] for f, n in zip(frames, names) if f.name in obs}
+    return replace(scene, frames=renamed, meta=meta), split, [f.name for f in frames]
+
+
+def write_split_files(folder: Path, split: Split) -> None:
+    """nerfstudio's COLMAP parser lists (``train_list.txt``, ``val_list.txt``, ``test_list.txt`` in the
+    scene folder) and 3DGS' ``sparse/0/test.txt``."""
+    for key, fname in LIST_FILES.items():
+        (Path(folder) / fname).write_text("".join(n + "\n" for n in getattr(split, key)))
+    model = Path(folder) / "sparse" / "0"
+    if model.is_dir():
+        (model / "test.txt").write_text("".join(n + "\n" for n in split.test))
+
+
+def write_sparself_json(folder: Path, scene: Scene, split: Split, sources: Sequence[str], info: DenseInfo) -> Path:
+    """``sparself.json``: format version, run and plan, each frame's flag/index/original name, the split."""
+    doc = {
+        "format": FORMAT, "version": VERSION, "run": info.run, "plan": info.plan,
+        "test_every": EVERY, "position_based_test_sets_are_real": split.positional_safe,
+        "split": {"rule": split.rule, "train": list(split.train), "val": list(split.val),
+                  "test": list(split.test)},
+        "frames": [{"name": f.name, "synthetic": bool(f.synthetic), "index": float(f.index), "source_name": s}
+                   for f, s in zip(scene.frames, sources)],
+    }
+    out = Path(folder) / SPARSELF_JSON
+    out.write_text(json.dumps(doc, indent=1) + "\n")
+    return out
+
+
+def read_synthetic_names(folder: Path) -> set[str] | None:
+    """Names of the synthesized frames listed in ``folder/sparself.json``; None when there is none."""
+    p = Path(folder) / SPARSELF_JSON
+    if not p.is_file():
+        return None
+    try:
+        doc = json.loads(p.read_text())
+        return {str(fr["name"]) for fr in doc["frames"] if fr.get("synthetic")}
+    except (OSError, ValueError, KeyError, TypeError):
+        log.warning("%s: unreadable; synthesized frames are not marked", p)
+        return None
+
+
+def downscaled_size(width: int, height: int, factor: int) -> tuple[int, int]:
+    """Size of an ``images_<factor>`` copy: floor division, as nerfstudio (default rounding) and gsplat
+    (``cam.width // factor``) compute the camera; at least 1 px."""
+    return max(1, width // factor), max(1, height // factor)
+
+
+def write_downscaled(folder: Path, scene: Scene, factors: Sequence[int] = FACTORS) -> None:
+    """``images_<f>/<name>`` for every frame (real and synthesized alike), from the written ``images/``."""
+    for i, f in enumerate(scene.frames):
+        img = load_image(Path(folder) / "images" / f.name, warn=False) if f.image is None else f.image
+        w, h = scene.image_size(i)
+        for k in factors:
+            dst = Path(folder) / f"images_{k}" / f.name
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            save_image(dst, resize_image(np.asarray(img, np.float32), downscaled_size(w, h, k)))
+
+
+def mark_synthetic(scene: Scene, names: set[str]) -> Scene:
+    """Frames whose name is in ``names`` get ``synthetic=True``."""
+    scene.frames = [replace(f, synthetic=True) if f.name in names else f for f in scene.frames]
+    return scene
