@@ -311,3 +311,35 @@ def test_a_view_that_sees_no_point_gets_one_on_its_axis(tmp_path):
     X = f.pose.R @ rec.points3D[obs[0].point3D_id].xyz + f.pose.tvec
     assert X[2] > 0 and np.allclose(X[:2], 0, atol=1e-9)
     assert all(i.num_points3D >= 1 for i in rec.images.values())
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_transforms_json_scene_brings_its_point_cloud_and_gets_tracks(tmp_path, binary):
+    """A transforms.json input with a PLY point cloud (ASCII as we write it, or binary as nerfstudio's
+    exports are): the points are read, and every written image observes some of them."""
+    import pycolmap
+
+    from sparself.io import write_nerfstudio
+
+    scene = _dense_scene(tmp_path / "src", n=9)
+    real = replace(scene, frames=[f for f in scene.frames if not f.synthetic])
+    write_nerfstudio(real, tmp_path / "src")
+    ply = tmp_path / "src" / "sparse_pc.ply"
+    if binary:
+        pts = np.asarray(scene.points, np.float32)
+        head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\nproperty float x\n"
+                "property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n"
+                "property uchar blue\nend_header\n").encode()
+        rec = np.zeros(len(pts), dtype=[(c, "<f4") for c in "xyz"] + [(c, "u1") for c in "rgb"])
+        rec["x"], rec["y"], rec["z"], rec["r"] = pts[:, 0], pts[:, 1], pts[:, 2], 200
+        ply.write_bytes(head + rec.tobytes())
+    back = read_nerfstudio(tmp_path / "src")
+    np.testing.assert_allclose(back.points, scene.points, atol=1e-6)
+    if binary:
+        assert np.all(back.meta["point_colors"][:, 0] == 200)
+    dense = replace(back, frames=sorted(back.frames + [f for f in scene.frames if f.synthetic], key=lambda f: f.index))
+    write_scene(dense, tmp_path / "out", dense=DenseInfo(downscale=False))
+    rec = pycolmap.Reconstruction(str(tmp_path / "out" / "sparse" / "0"))
+    assert rec.num_images() == 16 and all(im.num_points3D >= 1 for im in rec.images.values())
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n")
+    assert read_nerfstudio(tmp_path / "src").points is None  # unreadable cloud: a warning, not a failure

@@ -95,7 +95,8 @@ def safe_order(synthetic: Sequence[bool], every: int = EVERY) -> list[int] | Non
 def rank_names(names: Sequence[str], exts: Sequence[str]) -> list[str]:
     """``0007_<stem><ext>``: a zero-padded rank prefix, so that names sort in the given order."""
     width = max(4, len(str(len(names) - 1)))
-    return [f"{k:0{width}d}_{Path(n).stem.replace('/', '_')}{e}" for k, (n, e) in enumerate(zip(names, exts))]
+    return [f"{k:0{width}d}_{str(Path(n).with_suffix('')).replace('/', '_')}{e}"
+            for k, (n, e) in enumerate(zip(names, exts))]
 
 
 def llff_ext(name: str) -> str:

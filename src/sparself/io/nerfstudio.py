@@ -123,7 +123,12 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
-    return order_frames(Scene(cameras=cameras, frames=frames, source=js, meta={"format": "nerfstudio"}))
+    scene = Scene(cameras=cameras, frames=frames, source=js, meta={"format": "nerfstudio"})
+    if isinstance(meta.get("ply_file_path"), str) and (js.parent / meta["ply_file_path"]).is_file():
+        scene.points, colors = _read_ply(js.parent / meta["ply_file_path"])
+        if colors is not None:
+            scene.meta["point_colors"] = colors
+    return order_frames(scene)
 
 
 def _intrinsics(cam: Camera) -> dict:
@@ -180,6 +185,44 @@ def write_nerfstudio(scene: Scene, out_dir: Path, image_prefix: str = "images/",
     out = out_dir / FILENAME
     out.write_text(json.dumps(d, indent=2))
     return out
+
+
+_PLY_TYPES = {"float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",
+              "char": "i1", "int8": "i1", "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+              "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4"}
+
+
+def _read_ply(path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Vertices (x, y, z) and colours (red, green, blue, if present) of a point-cloud PLY (ASCII or
+    binary, vertex element first, as nerfstudio and sparself write them); (None, None) with a warning
+    for anything else, since the points are only an extra."""
+    try:
+        raw = Path(path).read_bytes()
+        end = raw.index(b"end_header") + len(b"end_header")
+        end += 2 if raw[end:end + 2] == b"\r\n" else 1
+        header = raw[:end].decode("ascii").split("\n")
+        fmt = next(h.split()[1] for h in header if h.startswith("format"))
+        n = int(next(h.split()[2] for h in header if h.startswith("element vertex")))
+        start = next(k for k, h in enumerate(header) if h.startswith("element vertex"))
+        props = []
+        for h in header[start + 1:]:
+            if not h.startswith("property"):
+                break
+            props.append((h.split()[2], _PLY_TYPES[h.split()[1]]))
+        if fmt == "ascii":
+            rows = np.loadtxt(raw[end:].decode("ascii").splitlines()[:n], ndmin=2)
+            data = {name: rows[:, k] for k, (name, _) in enumerate(props)}
+        else:
+            order = "<" if fmt == "binary_little_endian" else ">"
+            arr = np.frombuffer(raw, np.dtype([(name, order + t) for name, t in props]), count=n, offset=end)
+            data = {name: arr[name] for name, _ in props}
+        pts = np.stack([data["x"], data["y"], data["z"]], axis=1).astype(np.float64)
+        rgb = np.stack([data[c] for c in ("red", "green", "blue")], 1).astype(np.uint8) if "red" in data else None
+    except (OSError, ValueError, KeyError, StopIteration, IndexError, UnicodeDecodeError) as e:
+        log.warning("%s: cannot read the point cloud (%s); the scene is read without points", path, e)
+        return None, None
+    keep = np.all(np.isfinite(pts), axis=1)
+    return pts[keep], None if rgb is None else rgb[keep]
 
 
 def _write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None) -> None:
