@@ -123,20 +123,21 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     order = frame_name_order(scene)
     known = scene.meta.get("frame_bounds") or {}
     global_bounds = None
-    rows, warned = [], set()
+    rows, approx = [], []
     for i in order:
         f, cam = scene.frames[i], scene.camera(i)
-        if (abs(cam.fx - cam.fy) > 1e-6 * cam.fx or abs(cam.cx - cam.width / 2) > 0.5 or
-                abs(cam.cy - cam.height / 2) > 0.5) and f.camera_id not in warned:
-            warned.add(f.camera_id)
-            log.warning("LLFF stores one focal and a centred principal point; camera of %s "
-                        "(fx=%.2f fy=%.2f cx=%.2f cy=%.2f) is approximated", f.name, cam.fx, cam.fy, cam.cx, cam.cy)
+        if abs(cam.fx - cam.fy) > 1e-6 * cam.fx or abs(cam.cx - cam.width / 2) > 0.5 or \
+                abs(cam.cy - cam.height / 2) > 0.5:
+            approx.append(f"{f.name} (fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f})")
         b = known.get(f.name) or _frame_bounds(scene, i)
         if b is None:
             global_bounds = global_bounds or scene.depth_bounds()
             b = global_bounds
         m = np.concatenate([c2w_to_llff(f.pose.c2w()), [[cam.height], [cam.width], [cam.fx]]], axis=1)
         rows.append(np.concatenate([m.ravel(), b]))
+    if approx:  # once per write: a scene with one camera per photo would repeat it for every photo
+        log.warning("LLFF stores one focal and a centred principal point; the camera of %d view(s) is approximated"
+                    ", e.g. %s", len(approx), approx[0])
     return np.asarray(rows, dtype=np.float64), order
 
 
