@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,11 +14,26 @@ from PIL import Image
 
 from sparself.geometry import Pose, interpolate_pose, rotmat_to_quat
 from sparself.io import DenseInfo, read_colmap, read_llff, read_nerfstudio, read_scene, write_colmap, write_scene
+from planescene import camera_line, noise
 from sparself.io.dense import EVERY, downscaled_size, n_test_positions, safe_order
 from sparself.scene import Frame, Scene, image_size_of, save_image
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_io import H, W, _synthetic_scene  # noqa: E402
+W, H, FOCAL = 27, 18, 24.0  # odd sizes: w // f and round(w / f) differ
+
+
+def _photos(folder: Path, n: int, ext: str = ".png") -> Scene:
+    """n photos of random pixels on disk (000.png, ...), cameras on the x axis looking at 50 sparse points."""
+    scene = camera_line([0.1 * i for i in range(n)], (W, H), FOCAL, lambda pose, cam, i: noise(H, W, i),
+                        bounds=(1.0, 5.0), name=lambda i: f"{i:03d}{ext}")
+    (folder / "images").mkdir(parents=True)
+    for f in scene.frames:
+        f.path = folder / "images" / f.name
+        save_image(f.path, f.image)
+        f.image = None
+    rng = np.random.default_rng(0)
+    scene.points = np.column_stack([rng.uniform(-0.3, 0.1 * n + 0.3, 50), rng.uniform(-0.5, 0.5, 50),
+                                    rng.uniform(2.0, 4.0, 50)])
+    return scene
 
 
 # ---- the position rule (pure) --------------------------------------------------------------------
@@ -73,13 +87,7 @@ def test_downscaled_size_is_floor():
 
 def _dense_scene(folder: Path, n: int = 10, ext: str = ".png") -> Scene:
     """n real views + synthesized ones at -0.4, -0.2 (before the start), midpoints and one past the end."""
-    scene = _synthetic_scene(folder, n=n)
-    if ext != ".png":
-        for f in scene.frames:
-            p = f.path.with_suffix(ext)
-            Image.open(f.path).convert("RGB").save(p, quality=98)
-            f.path.unlink()
-            f.path, f.name = p, p.name
+    scene = _photos(folder, n, ext)
     rng = np.random.default_rng(1)
     targets = []
     for idx in (-0.4, -0.2, 0.5, 3.5, 5.5, 7.5, n - 1 + 0.2):
@@ -157,7 +165,7 @@ def test_images_n_sizes_and_cameras(written):
         small = read_llff(folder, images=d)  # our LLFF reader scales the focal to the files, as NeRF's does
         cam = small.camera(0)
         assert (cam.width, cam.height) == downscaled_size(W, H, k)
-        assert cam.fx == pytest.approx(20.5 * cam.width / W)
+        assert cam.fx == pytest.approx(FOCAL * cam.width / W)
 
 
 def test_every_image_has_observations_that_reproject_within_a_pixel(written):
@@ -182,7 +190,7 @@ def _model_with_tracks(folder: Path, offset: float) -> Scene:
     """A COLMAP model whose real observations sit ``offset`` px from the exact projections."""
     import pycolmap
 
-    scene = _synthetic_scene(folder, n=9)
+    scene = _photos(folder, 9)
     write_colmap(scene, folder / "sparse" / "0")
     rec = pycolmap.Reconstruction(str(folder / "sparse" / "0"))
     kept = []
@@ -226,7 +234,7 @@ def test_real_sfm_tracks_are_kept_and_synthesized_views_get_projected_ones(tmp_p
 
 def test_tracks_scale_with_a_resized_scene(tmp_path):
     src = _model_with_tracks(tmp_path / "src", offset=0.0)
-    small = src.resized(12)  # 24x16 -> 12x8
+    small = src.resized(12)  # 27x18 -> 12x8
     from sparself.io.colmap import reconstruction_from_scene
 
     rec = reconstruction_from_scene(small)
@@ -239,10 +247,10 @@ def test_tracks_scale_with_a_resized_scene(tmp_path):
 
 
 def test_exif_rotated_photo_written_upright_without_flag(tmp_path):
-    """A phone photo stored 16x24 with orientation 6 (rotate 90): its camera says 24x16 upright."""
+    """A phone photo stored H x W with orientation 6 (rotate 90): its camera says W x H upright."""
     scene = _dense_scene(tmp_path / "src", n=4)
     real = next(f for f in scene.frames if not f.synthetic)
-    raw = (np.random.default_rng(0).random((W, H, 3)) * 255).astype(np.uint8)  # 16 wide, 24 high
+    raw = (np.random.default_rng(0).random((W, H, 3)) * 255).astype(np.uint8)  # H wide, W high
     exif = Image.Exif()
     exif[0x0112] = 6
     p = real.path.with_suffix(".jpg")
@@ -268,7 +276,7 @@ def test_user_holdout_goes_to_val_and_test(tmp_path):
 
 
 def test_too_few_real_views_warns_and_keeps_index_order(tmp_path, caplog):
-    scene = _synthetic_scene(tmp_path / "src", n=3)
+    scene = _photos(tmp_path / "src", 3)
     extra = [Frame(name=f"novel_{i:07.2f}.png", pose=scene.frames[0].pose, index=0.05 * (i + 1), synthetic=True,
                    image=np.zeros((H, W, 3), np.float32)) for i in range(19)]  # 22 views need 3 real at 0, 8, 16
     extra += [Frame(name="novel_late.png", pose=scene.frames[0].pose, index=5.0, synthetic=True,
@@ -283,7 +291,7 @@ def test_too_few_real_views_warns_and_keeps_index_order(tmp_path, caplog):
 
 
 def test_scene_without_synthesized_frames_keeps_its_names(tmp_path):
-    scene = _synthetic_scene(tmp_path / "src", n=4)
+    scene = _photos(tmp_path / "src", 4)
     out = write_scene(scene, tmp_path / "out")
     assert [f.name for f in out.frames] == ["000.png", "001.png", "002.png", "003.png"]
     assert not (tmp_path / "out" / "sparself.json").exists()
