@@ -351,3 +351,11 @@ def test_transforms_json_scene_brings_its_point_cloud_and_gets_tracks(tmp_path, 
     assert rec.num_images() == 16 and all(im.num_points3D >= 1 for im in rec.images.values())
     ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n")
     assert read_nerfstudio(tmp_path / "src").points is None  # unreadable cloud: a warning, not a failure
+
+
+def test_a_dense_scene_written_again_keeps_one_rank_prefix(written, tmp_path):
+    scene, out, folder = written
+    again = read_scene(folder)
+    assert sum(f.synthetic for f in again.frames) == 7
+    out2 = write_scene(again, tmp_path / "again", dense=DenseInfo(downscale=False))
+    assert [f.name for f in out2.frames] == [f.name for f in out.frames]

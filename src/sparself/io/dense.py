@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
@@ -32,6 +33,7 @@ SPARSELF_JSON = "sparself.json"
 FORMAT, VERSION = "sparself-scene", 1
 LIST_FILES = {"train": "train_list.txt", "val": "val_list.txt", "test": "test_list.txt"}  # nerfstudio colmap
 _JPEG = (".jpg", ".jpeg")
+_RANKED = re.compile(r"^\d{4,}_")
 
 
 @dataclass(frozen=True)
@@ -93,10 +95,13 @@ def safe_order(synthetic: Sequence[bool], every: int = EVERY) -> list[int] | Non
 
 
 def rank_names(names: Sequence[str], exts: Sequence[str]) -> list[str]:
-    """``0007_<stem><ext>``: a zero-padded rank prefix, so that names sort in the given order."""
+    """``0007_<stem><ext>``: a zero-padded rank prefix, so that names sort in the given order. Names that
+    all carry such a prefix already (a dense scene written again) lose the old one first."""
     width = max(4, len(str(len(names) - 1)))
-    return [f"{k:0{width}d}_{str(Path(n).with_suffix('')).replace('/', '_')}{e}"
-            for k, (n, e) in enumerate(zip(names, exts))]
+    stems = [str(Path(n).with_suffix("")).replace("/", "_") for n in names]
+    if stems and all(_RANKED.match(st) for st in stems):
+        stems = [_RANKED.sub("", st, count=1) for st in stems]
+    return [f"{k:0{width}d}_{st}{e}" for k, (st, e) in enumerate(zip(stems, exts))]
 
 
 def llff_ext(name: str) -> str:
