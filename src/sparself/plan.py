@@ -182,7 +182,9 @@ def reindexed(scene: Scene, seq: np.ndarray) -> Scene:
 # ---- the plan ------------------------------------------------------------------------------------
 
 def novel_name(index: float) -> str:
-    """File name of a planned view: ``novel_0003.50.png`` for index 3.5."""
+    """File name of a planned view: ``novel_0003.50.png`` for index 3.5. It sorts by index only for
+    index >= 0; the written dense scene prefixes a rank (``sparself.io.dense.rank_names``) so that
+    names sort in its order for any index."""
     return f"novel_{index:07.2f}.png"
 
 
