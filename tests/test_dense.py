@@ -359,3 +359,25 @@ def test_a_dense_scene_written_again_keeps_one_rank_prefix(written, tmp_path):
     assert sum(f.synthetic for f in again.frames) == 7
     out2 = write_scene(again, tmp_path / "again", dense=DenseInfo(downscale=False))
     assert [f.name for f in out2.frames] == [f.name for f in out.frames]
+
+
+def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, small_scene, tiny_cfg):
+    """The pipeline end to end on the small plane scene (7 views, 40 x 28): the user's held-out view is
+    val/test, synthesized views are train only, sparself.json names the run and plan beside the scene."""
+    from sparself.plan import PlanConfig
+    from sparself.synthesize import DensifyConfig, densify
+
+    cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2))
+    densify(small_scene, tmp_path / "out", cfg)
+    folder = tmp_path / "out" / "scene"
+    sj = json.loads((folder / "sparself.json").read_text())
+    assert sj["run"] == "../run" and sj["plan"] == "../plan.json"
+    assert (folder / sj["run"] / "checkpoint.pt").is_file() and (folder / sj["plan"]).is_file()
+    src = {fr["name"]: fr["source_name"] for fr in sj["frames"]}
+    assert [src[n] for n in sj["split"]["test"]] == ["f03.png"]
+    assert sum(fr["synthetic"] for fr in sj["frames"]) == 5 and len(sj["frames"]) == 12
+    assert not any(fr["synthetic"] for fr in sj["frames"] if fr["name"] in sj["split"]["test"])
+    names = sorted(p.name for p in (folder / "images").iterdir())
+    assert names == [fr["name"] for fr in sj["frames"]] and not src[names[8]].startswith("novel_")
+    for k in (2, 4, 8):
+        assert sorted(p.name for p in (folder / f"images_{k}").iterdir()) == names
