@@ -365,7 +365,7 @@ def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, 
     """The pipeline end to end on the small plane scene (7 views, 40 x 28): the user's held-out view is
     val/test, synthesized views are train only, sparself.json names the run and plan beside the scene."""
     from sparself.plan import PlanConfig
-    from sparself.synthesize import DensifyConfig, densify
+    from sparself.pipeline import DensifyConfig, densify
 
     cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2))
     densify(small_scene, tmp_path / "out", cfg)
@@ -381,3 +381,18 @@ def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, 
     assert names == [fr["name"] for fr in sj["frames"]] and not src[names[8]].startswith("novel_")
     for k in (2, 4, 8):
         assert sorted(p.name for p in (folder / f"images_{k}").iterdir()) == names
+
+
+def test_no_downscaled_reaches_densify_and_synthesize(monkeypatch):
+    """--no-downscaled on both commands that write a dense scene; the copies are on by default."""
+    from sparself import cli, pipeline, synthesize
+
+    seen = {}
+    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg: seen.setdefault("densify", cfg.downscaled))
+    monkeypatch.setattr(synthesize, "synthesize_plan", lambda *a, downscaled, **k: seen.setdefault("synth", downscaled))
+    for flag, want in (([], True), (["--no-downscaled"], False)):
+        seen.clear()
+        assert cli.main(["densify", "p", "--out", "o", "-q", *flag]) == 0
+        assert cli.main(["synthesize", "r", "--plan", "x.json", "--out", "o", "-q", *flag]) == 0
+        assert seen == {"densify": want, "synth": want}
+    assert pipeline.DensifyConfig().downscaled is True
