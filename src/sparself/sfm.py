@@ -228,8 +228,9 @@ def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict
     db = work / "database.db"
     colmap_images = _colmap_inputs(paths, work)
     t0 = time.perf_counter()
+    longest = max(max(image_size_of(p)) for p in paths)
     log.info("sfm: extracting SIFT features from %d images%s", len(names),
-             f" (downscaled to {cfg.max_image_size} px)" if cfg.max_image_size > 0 else "")
+             f" (downscaled from {longest} to {cfg.max_image_size} px)" if 0 < cfg.max_image_size < longest else "")
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     pycolmap.extract_features(

@@ -49,6 +49,7 @@ from .scene import Scene, one_size
 log = logging.getLogger(__name__)
 
 CHECKPOINT, CONFIG, LOG = "checkpoint.pt", "config.json", "train_log.csv"
+MIN_SIZE = 16  # px, long side of the training images
 
 
 @dataclass
@@ -104,6 +105,9 @@ class TrainConfig:
         for name in ("epochs", "size", "crop", "batch_size", "planes", "channels", "fc_side", "checkpoint_every"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.size < MIN_SIZE:  # optical flow and the sweep's matching windows need this much image
+            raise ConfigError(f"training image size {self.size} px is too small: at least {MIN_SIZE} px "
+                              "(train: --size; densify: --out-size)")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ConfigError(f"device must be auto, cpu or cuda, got {self.device!r}")
         if self.fallback not in ("blend", "flow"):

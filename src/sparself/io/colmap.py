@@ -56,6 +56,7 @@ def _default_image_dir(model_dir: Path) -> Path:
 
 
 def _check_model_files(model_dir: Path) -> None:
+    camera_ids: set[int] | None = None
     for stem in _MODEL_FILES:
         b, t = model_dir / f"{stem}.bin", model_dir / f"{stem}.txt"
         if not (b.is_file() or t.is_file()):
@@ -64,21 +65,24 @@ def _check_model_files(model_dir: Path) -> None:
         if f.stat().st_size == 0 and stem != "points3D":
             raise InputError(f"{f}: file is empty (0 bytes)")
         if f is t and stem in _TEXT_LAYOUT:
-            _check_text_model(t, stem)
+            ids = _check_text_model(t, stem, camera_ids)
+            camera_ids = ids if stem == "cameras" else camera_ids
 
 
 _TEXT_LAYOUT = {"cameras": "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]",
                 "images": "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"}
 
 
-def _check_text_model(path: Path, stem: str) -> None:
-    """Readable errors for a malformed cameras.txt / images.txt (pycolmap reports C++ assertion text):
-    each camera line and each image pose line must have its fields, as finite numbers."""
+def _check_text_model(path: Path, stem: str, camera_ids: set[int] | None = None) -> set[int]:
+    """Readable errors for a malformed cameras.txt / images.txt (pycolmap reports C++ assertion text, or
+    reads a zero quaternion as the identity): each camera line and each image pose line must have its
+    fields, as finite numbers; a pose needs a non-zero quaternion and a camera listed in cameras.txt
+    (``camera_ids``, when known). Returns the ids of the lines' first field."""
     try:
         lines = path.read_text().splitlines()
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read ({e})") from None
-    k = 0
+    ids, k = set(), 0
     while k < len(lines):
         fields = lines[k].split()
         k += 1
@@ -93,8 +97,21 @@ def _check_text_model(path: Path, stem: str) -> None:
         except ValueError:
             raise InputError(f"{where} has a non-numeric value (expected {_TEXT_LAYOUT[stem]})") from None
         check_finite(vals, where)
+        ids.add(int(vals[0]))
         if stem == "images":
+            _check_image_line(where, vals, fields[9], camera_ids, path)
             k += 1  # the next line lists the image's 2D points (possibly empty)
+    return ids
+
+
+def _check_image_line(where: str, vals: np.ndarray, name: str, camera_ids: set[int] | None, path: Path) -> None:
+    if np.linalg.norm(vals[1:5]) < 1e-12:
+        raise InputError(f"{where} ({name}): quaternion QW QX QY QZ is zero, which is no rotation "
+                         "(identity is 1 0 0 0)")
+    cam = int(vals[8])
+    if camera_ids is not None and cam not in camera_ids:
+        raise InputError(f"{where} ({name}): camera {cam} is not in {path.parent / 'cameras.txt'} "
+                         f"(it lists {', '.join(map(str, sorted(camera_ids))) or 'none'})")
 
 
 def load_reconstruction(model_dir: Path):

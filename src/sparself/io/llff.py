@@ -28,6 +28,14 @@ FILENAME = "poses_bounds.npy"
 
 def _load_array(path: Path) -> np.ndarray:
     try:
+        with open(path, "rb") as f:
+            head = f.read(6)
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    if head != b"\x93NUMPY":  # numpy's own message for this speaks of pickles
+        what = "empty (0 bytes)" if not head else "not a numpy .npy file"
+        raise InputError(f"{path}: {what}; expected LLFF poses saved with numpy.save (an (N, 17) array)")
+    try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as e:
         raise InputError(f"{path}: cannot read numpy array ({e}); the file may be truncated or corrupt") from None
@@ -38,6 +46,31 @@ def _load_array(path: Path) -> np.ndarray:
     arr = arr.astype(np.float64)
     check_finite(arr, str(path))
     return arr
+
+
+def _count_mismatch(npy: Path, n_poses: int, files: list[Path], image_dir: Path) -> str:
+    """The message for a pose/image count mismatch, naming the images that are probably extra: those
+    missing from a COLMAP model beside the pose file (LLFF's imgs2poses leaves one), else the newest."""
+    msg = f"{npy}: {n_poses} poses but {len(files)} images in {image_dir}"
+    extra = len(files) - n_poses
+    if extra <= 0:
+        return msg + " (an image is missing: rows are matched to images in sorted name order)"
+    from .colmap import find_model_dir, load_reconstruction
+
+    model, why = find_model_dir(npy.parent), ""
+    if model is not None:
+        try:
+            posed = {im.name for im in load_reconstruction(model).images.values()}
+        except InputError:
+            posed = set()
+        odd = [f.name for f in files if f.name not in posed] if posed else []
+        if 0 < len(odd) <= extra:
+            names, why = odd, f"not in the COLMAP model {model}"
+    if not why:
+        names = [f.name for f in sorted(files, key=lambda f: f.stat().st_mtime_ns)[-extra:]]
+        why = "the newest; rows are matched to images in sorted name order, so which is extra is a guess"
+    shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    return f"{msg}: remove or move the extra {'image' if extra == 1 else 'images'} {shown} ({why})"
 
 
 def llff_to_c2w(mat: np.ndarray) -> np.ndarray:
@@ -67,8 +100,8 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     image_dir = Path(images) if images is not None else npy.parent / "images"
     files = list_images(image_dir)
     if len(files) != len(arr):
-        raise InputError(f"{npy}: {len(arr)} poses but {len(files)} images in {image_dir}")
-    frames, cams, frame_bounds = [], [], {}
+        raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
+    frames, cams, frame_bounds, scaled = [], [], {}, {}
     for i, (row, img) in enumerate(zip(arr, files)):
         m = row[:15].reshape(3, 5)
         R = m[:, :3]
@@ -85,10 +118,13 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         if (iw, ih) != (int(round(w)), int(round(h))):
             if abs(sx - sy) > 0.02:
                 raise InputError(f"{img}: image is {iw}x{ih} but {npy.name} says {w:g}x{h:g} (aspect differs)")
-            log.info("%s: images are %dx%d, poses say %gx%g; scaling focal by %.4f", npy.name, iw, ih, w, h, sx)
+            scaled.setdefault((iw, ih, w, h, sx), []).append(img.name)
         cams.append(Camera("SIMPLE_PINHOLE", iw, ih, (focal * sx, iw / 2.0, ih / 2.0)))
         frames.append(Frame(name=img.name, pose=Pose.from_c2w(llff_to_c2w(m[:, :4])), index=float(i), path=img))
         frame_bounds[img.name] = (float(near), float(far))
+    for (iw, ih, w, h, sx), names in scaled.items():  # once per size, not once per view
+        log.info("%s: %d of %d images are %dx%d, poses say %gx%g; scaling focal by %.4f", npy.name, len(names),
+                 len(files), iw, ih, w, h, sx)
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid

@@ -115,6 +115,23 @@ def default_weights() -> str:
     return NO_WEIGHTS
 
 
+_WEIGHTS_HINT = "give torchvision's resnet18-f37072fd.pth, or --weights none"
+
+
+def _check_weights_file(path: Path) -> None:
+    """A file torch.save wrote starts as a zip archive or a pickle; anything else gets a plain message."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    if not head:
+        raise InputError(f"{path}: weights file is empty (0 bytes); {_WEIGHTS_HINT}")
+    if not (head.startswith(b"PK") or head[:1] == b"\x80"):
+        raise InputError(f"{path}: not a torch weights file (neither a zip archive nor a pickle, as torch.save "
+                         f"writes); {_WEIGHTS_HINT}")
+
+
 def load_resnet18_weights(model: ResNet18, path: Path | str | None = None) -> str:
     """Load ImageNet weights into ``model`` strictly; returns where they came from ("random" if none).
 
@@ -133,10 +150,12 @@ def load_resnet18_weights(model: ResNet18, path: Path | str | None = None) -> st
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: weights file not found")
+    _check_weights_file(path)
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # pickle/zip errors come in many types
-        raise InputError(f"{path}: cannot read as a torch checkpoint ({type(e).__name__}: {e})") from None
+    except Exception as e:  # pickle/zip errors come in many types; torch's text adds pages of advice
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise InputError(f"{path}: cannot read as torch weights ({first}); {_WEIGHTS_HINT}") from None
     if isinstance(sd, dict) and "state_dict" in sd and isinstance(sd["state_dict"], dict):
         sd = sd["state_dict"]
     if not isinstance(sd, dict) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
