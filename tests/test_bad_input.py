@@ -757,9 +757,9 @@ def test_bad_plan_file(trained, tmp_path, capsys, case, edit, needles):
 
 
 def test_mixed_aspect_ratios_are_refused(trained, tmp_path, capsys):
-    s = make_scene(6)
-    s.cameras[2] = Camera.pinhole(H, H, F)
-    s.frames[2].camera_id, s.frames[2].image = 2, texture(H, H, 2)
+    s = _awkward_scene()  # the trained run's views and poses (synthesize refuses another scene first)
+    s.cameras[3] = Camera.pinhole(H, H, F)
+    s.frames[2].camera_id, s.frames[2].image = 3, texture(H, H, 2)
     scene = write_posed(tmp_path / "square", s, "colmap")
     check_failure(capsys, tmp_path / "t", "train", scene, "square", "different aspect ratios", f"{H}x{H}",
                   case="mixed aspect [train]")

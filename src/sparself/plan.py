@@ -82,6 +82,8 @@ class PlanConfig:
             raise ConfigError(f"order must be auto, capture or nearest, got {self.order!r}")
         if self.gaps not in ("even", "largest"):
             raise ConfigError(f"gaps must be even or largest, got {self.gaps!r}")
+        if self.n_mid == 0 and self.n_extra == 0:
+            raise ConfigError("--n-mid 0 and --n-extra 0 plan no novel pose at all; give one of them above 0")
 
 
 # ---- ordering ------------------------------------------------------------------------------------
@@ -270,7 +272,8 @@ def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None,
         "format": PLAN_FORMAT,
         "version": PLAN_VERSION,
         "convention": "qvec [qw,qx,qy,qz] and tvec are COLMAP world-to-camera; c2w uses OpenCV camera axes",
-        "source": str(scene.source) if scene is not None and scene.source is not None else None,
+        "source": str(Path(scene.source).resolve()) if scene is not None and scene.source is not None else None,
+        **(_source_record(scene) if scene is not None else {}),
         "config": asdict(cfg) if cfg is not None else None,
         "n_source_views": len(scene) if scene is not None else None,
         "cameras": (
@@ -296,6 +299,50 @@ def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None,
     return path
 
 
+def _source_record(scene: Scene) -> dict:
+    """What identifies the source scene in a plan file: its views' names and where its cameras are."""
+    return {"source_frames": [f.name for f in scene.frames],
+            "source_center": [float(v) for v in scene.centers().mean(0)], "source_scale": float(scene.scale())}
+
+
+def _check_source(path: Path, doc: dict, scene: Scene) -> None:
+    """Refuse a plan made for another scene: other views, other cameras, or indices the scene lacks."""
+    src = doc.get("source") or "another scene"
+    names, n = doc.get("source_frames"), doc.get("n_source_views")
+    if isinstance(n, int) and n != len(scene):
+        raise InputError(f"{path}: plan was made for {n} views ({src}), this scene has {len(scene)} "
+                         f"({scene.source}); make a new plan with `sparself plan`")
+    if isinstance(names, list) and sorted(map(str, names)) != sorted(f.name for f in scene.frames):
+        odd = sorted(set(map(str, names)) ^ {f.name for f in scene.frames})
+        raise InputError(f"{path}: plan was made for other views ({src}; in only one of the two: "
+                         f"{', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''}); make a new plan for "
+                         f"{scene.source} with `sparself plan`")
+    c, sc = doc.get("source_center"), doc.get("source_scale")
+    if isinstance(c, list) and isinstance(sc, (int, float)) and len(c) == 3 and len(scene) > 0:
+        moved = float(np.linalg.norm(np.asarray(c, float) - scene.centers().mean(0)))
+        if moved > 1e-3 * max(float(sc), 1e-12) or abs(float(sc) - scene.scale()) > 1e-3 * max(float(sc), 1e-12):
+            raise InputError(f"{path}: plan was made for cameras elsewhere ({src}): same view names, other "
+                             f"poses; make a new plan for {scene.source} with `sparself plan`")
+    for cid, rec in (doc.get("cameras") or {}).items():
+        cam = scene.cameras.get(int(cid)) if str(cid).isdigit() else None
+        if cam is not None and isinstance(rec, dict) and (rec.get("width"), rec.get("height")) != (cam.width, cam.height):
+            raise InputError(f"{path}: plan's camera {cid} is {rec.get('width')}x{rec.get('height')}, the scene's "
+                             f"is {cam.width}x{cam.height} ({scene.source}); make a new plan with `sparself plan`")
+
+
+def _check_indices(path: Path, frames: list[Frame], scene: Scene) -> None:
+    """Planned indices must lie among (or just past) the scene's: a plan for a longer capture does not."""
+    own = np.array([f.index for f in scene.frames], dtype=np.float64)
+    if not len(own) or not frames:
+        return
+    lo, hi = own.min(), own.max()
+    span = max(hi - lo, 1.0)
+    bad = [f for f in frames if not lo - span <= f.index <= hi + span]
+    if bad:
+        raise InputError(f"{path}: planned index {bad[0].index:g} ({bad[0].name}) is far outside this scene's "
+                         f"views {lo:g}..{hi:g}: the plan was made for another scene")
+
+
 def _reject_constant(name: str):
     raise ValueError(f"non-finite number {name}")
 
@@ -314,11 +361,14 @@ def _vector(path: Path, i: int, rec: dict, key: str, n: int) -> np.ndarray:
     return v.reshape(-1)
 
 
-def load_plan(path: Path, scene: Scene) -> list[Frame]:
+def load_plan(path: Path, scene: Scene, *, check_source: bool = True) -> list[Frame]:
     """Read a plan written by :func:`save_plan`; camera ids must exist in ``scene``.
 
-    Raises InputError naming the file on unreadable or invalid JSON, NaN/inf, wrong shapes, unknown
-    cameras, or a c2w that disagrees with qvec/tvec (someone edited one and not the other).
+    Raises InputError naming the file on unreadable or invalid JSON, an unknown version, no frames,
+    NaN/inf, wrong shapes, unknown cameras, or a c2w that disagrees with qvec/tvec (someone edited one and
+    not the other). check_source: also refuse a plan made for another scene (other number of views, view
+    names, camera poses or image size, as recorded by :func:`save_plan`; indices far outside the scene's).
+    A plan without a version (written by hand) is read as version 1.
     """
     path = Path(path)
     try:
@@ -335,6 +385,14 @@ def load_plan(path: Path, scene: Scene) -> list[Frame]:
         raise InputError(f"{path}: cannot read ({e.strerror})") from None
     if not isinstance(doc, dict) or doc.get("format") != PLAN_FORMAT or not isinstance(doc.get("frames"), list):
         raise InputError(f"{path}: not a sparself plan (expected format {PLAN_FORMAT!r} with a 'frames' list)")
+    if doc.get("version", PLAN_VERSION) != PLAN_VERSION:
+        raise InputError(f"{path}: plan version {doc.get('version')!r} is not one this sparself reads "
+                         f"(version {PLAN_VERSION}); make the plan again with `sparself plan`")
+    if not doc["frames"]:
+        raise InputError(f"{path}: the plan has no frames, so there is nothing to synthesize "
+                         "(make it with --n-mid or --n-extra above 0)")
+    if check_source:
+        _check_source(path, doc, scene)
     frames = []
     for i, rec in enumerate(doc["frames"]):
         if not isinstance(rec, dict):
@@ -360,6 +418,8 @@ def load_plan(path: Path, scene: Scene) -> list[Frame]:
                              f"(has {sorted(scene.cameras)})")
         name = str(rec.get("name") or novel_name(index))
         frames.append(Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True))
+    if check_source:
+        _check_indices(path, frames, scene)
     return frames
 
 
