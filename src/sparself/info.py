@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -10,11 +11,33 @@ import numpy as np
 from .geometry import quat_angle
 from .scene import Scene
 
+# the names `sparself synthesize` and `densify` give synthesized views (sparself.plan.novel_name)
+_NOVEL = re.compile(r"novel_-?\d+\.\d\d\.png")
+
+
+def synthesized_views(scene: Scene) -> list[str]:
+    """Names of the views sparself synthesized (flagged in memory, or named novel_*.png on disk)."""
+    return [f.name for f in scene.frames if f.synthetic or _NOVEL.fullmatch(Path(f.name).name)]
+
+
+def depth_bounds_origin(scene: Scene) -> str:
+    """Where :meth:`Scene.depth_bounds` takes near/far from, in words (the same tests, in the same order)."""
+    if scene.bounds is not None:
+        name = Path(scene.source).name if scene.source is not None else "the scene"
+        return f"the near/far bounds stored in {name}"
+    if scene.points is not None and len(scene.points) >= 10:
+        n = sum(int(np.sum((scene.points @ f.pose.R.T + f.pose.tvec)[:, 2] > 0)) for f in scene.frames)
+        if n >= 10:
+            return (f"depths of the {len(scene.points)} sparse points in front of the cameras "
+                    "(1st and 99th percentile, widened by 10%)")
+    return ("a guess from the camera layout (0.2x and 5x the cameras' median distance to their centroid): "
+            "the scene has no stored bounds and too few sparse points")
+
 
 def scene_info(scene: Scene) -> dict:
     """A JSON-ready summary of a scene (no image is decoded).
 
-    Keys: views, sizes, cameras (model, size, fx, fy, cx, cy, params, fov_deg), centers (min, max, extent),
+    Keys: views (real_views + synthesized_views), sizes, cameras (model, size, fx, fy, cx, cy, params, fov_deg), centers (min, max, extent),
     scale, depth_bounds + depth_bounds_from, step (median distance and rotation between consecutive views).
     """
     cams = {}
@@ -27,12 +50,8 @@ def scene_info(scene: Scene) -> dict:
             "views": sum(1 for f in scene.frames if f.camera_id == cid),
         }
     centers = scene.centers()
-    if scene.bounds is not None:
-        src = "pose file bounds"
-    elif scene.points is not None and len(scene.points) >= 10:
-        src = "sparse points"
-    else:
-        src = "guess from camera layout"
+    src = depth_bounds_origin(scene)
+    synth = synthesized_views(scene)
     near, far = scene.depth_bounds() if len(scene) else (float("nan"), float("nan"))
     steps_d = np.linalg.norm(np.diff(centers, axis=0), axis=1) if len(scene) > 1 else np.zeros(0)
     steps_r = (np.degrees(quat_angle(np.stack([f.pose.qvec for f in scene.frames[:-1]]),
@@ -41,6 +60,8 @@ def scene_info(scene: Scene) -> dict:
     return {
         "source": str(scene.source) if scene.source is not None else None,
         "views": len(scene),
+        "real_views": len(scene) - len(synth),
+        "synthesized_views": len(synth),
         "sizes": sorted({f"{scene.cameras[f.camera_id].width}x{scene.cameras[f.camera_id].height}"
                          for f in scene.frames}),
         "cameras": cams,
@@ -67,7 +88,8 @@ def _vec(v) -> str:
 def format_info(info: dict) -> str:
     """Human-readable text of :func:`scene_info`'s dict."""
     lines = [f"scene:         {info['source'] or '(in memory)'}",
-             f"views:         {info['views']}",
+             f"views:         {info['views']} ({info.get('real_views', info['views'])} real + "
+             f"{info.get('synthesized_views', 0)} synthesized)",
              f"image size:    {', '.join(info['sizes'])} (W x H)"]
     for cid, c in info["cameras"].items():
         lines.append(f"camera {cid}:      {c['model']} {c['width']}x{c['height']}, "
@@ -78,7 +100,7 @@ def format_info(info: dict) -> str:
         lines.append(f"camera centres: min {_vec(cen['min'])}  max {_vec(cen['max'])}  extent {_vec(cen['extent'])}")
         lines.append(f"scene scale:   {info['scale']:.4g} (median distance of camera centres to their mean)")
         near, far = info["depth_bounds"]
-        lines.append(f"depth bounds:  near {near:.4g}, far {far:.4g} (from {info['depth_bounds_from']})")
+        lines.append(f"depth bounds:  near {near:.4g}, far {far:.4g}, from {info['depth_bounds_from']}")
     st = info["step"]
     if st["median_distance"] is not None:
         lines.append(f"median step:   {st['median_distance']:.4g} between consecutive views, "

@@ -200,13 +200,19 @@ def _lpips_net(alex_path: str, lin_path: str):
     return net.eval()
 
 
+_SAID: set[str] = set()  # LPIPS notices already logged
+
+
 def lpips(a: np.ndarray, b: np.ndarray, weights_dir: str | os.PathLike | None = None) -> float | None:
     """LPIPS v0.1 (AlexNet) distance of two (H, W, 3) images in [0, 1]; None when the weights are not
     available locally (see :func:`lpips_status`). Lower is more similar."""
     a, b = _pair(a, b)
     alex, lin, _ = _find_weights(weights_dir)
     if alex is None or lin is None:
-        log.info("LPIPS %s", lpips_status(weights_dir))
+        status = lpips_status(weights_dir)
+        if status not in _SAID:  # once per process, not once per scored image
+            _SAID.add(status)
+            log.info("LPIPS %s", status)
         return None
     import torch
 
