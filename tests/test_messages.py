@@ -239,3 +239,193 @@ def test_resume_on_another_scene_is_refused(small_run, tmp_path, capsys, other, 
     one_error(code, err, "train", other, "not the scene", "resume with that scene", *needles,
               case=f"--resume on another scene ({other}) [train]")
     assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before
+
+
+# ---- section 7: what the user sees when things go right ---------------------------------------------------------
+
+SUMMARY = r" in \d+\.\d s$"
+
+
+def _one_stdout_line(out: str) -> str:
+    lines = out.strip().splitlines()
+    assert len(lines) == 1, out
+    return lines[0]
+
+
+def test_every_command_ends_with_a_summary(small_run, tmp_path, capsys):
+    import re
+
+    code, out, err = run(capsys, "train", small_run / "scene", "--out", tmp_path / "run", *TRAIN, "-q")
+    assert code == 0, err
+    line = _one_stdout_line(out)
+    assert re.match(rf"trained 1 epoch\(s\) on 6 real views -> {re.escape(str(tmp_path / 'run'))} "
+                    rf"\(checkpoint.pt, config.json, train_log.csv\){SUMMARY}", line), line
+    code, out, err = run(capsys, "plan", small_run / "scene", "--out", tmp_path / "p.json", "--n-mid", "3",
+                         "--n-extra", "1", "-q")
+    assert code == 0 and re.match(rf"planned 4 novel poses -> .*p.json{SUMMARY}", _one_stdout_line(out)), out
+    code, out, err = _synth(capsys, small_run, tmp_path / "dense", plan=tmp_path / "p.json")
+    line = _one_stdout_line(out)
+    assert code == 0 and re.match(rf"wrote 10 views \(6 real \+ 4 synthesized\) -> .*dense \(images/, sparse/0, "
+                                  rf"poses_bounds.npy, transforms.json\){SUMMARY}", line), line
+    code, out, err = run(capsys, "densify", small_run / "scene", "--out", tmp_path / "d", *TRAIN, "--n-mid", "2",
+                         "--n-extra", "1", "-q")
+    line = _one_stdout_line(out)
+    assert code == 0 and re.match(rf"wrote 9 views \(6 real \+ 3 synthesized\) -> .*d/scene \(run: .*d/run, "
+                                  rf"plan: .*d/plan.json\){SUMMARY}", line), line
+    assert "INFO" not in err  # -q: warnings only
+
+
+class _Terminal:
+    """A stand-in for stderr that says it is a terminal."""
+
+    def __init__(self) -> None:
+        import io
+
+        self.buf = io.StringIO()
+
+    def isatty(self) -> bool:
+        return True
+
+    def write(self, s: str) -> int:
+        return self.buf.write(s)
+
+    def flush(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("tty, quiet, bar", [(True, False, True), (True, True, False), (False, False, False)])
+def test_training_bar_only_on_a_terminal_and_never_with_q(small_run, tmp_path, capsys, monkeypatch, tty, quiet, bar):
+    import sys
+
+    term = _Terminal()
+    if tty:
+        monkeypatch.setattr(sys, "stderr", term)
+    code = main([str(a) for a in ("train", small_run / "scene", "--out", tmp_path / "run", *TRAIN)]
+                + (["-q"] if quiet else []))
+    err = term.buf.getvalue() if tty else capsys.readouterr().err
+    assert code == 0, err
+    assert ("\r" in err) == bar, err
+    if bar:
+        assert "train:" in err and "1/1" in err
+    else:
+        assert "\x1b" not in err
+    if not quiet:  # before the first checkpoint, whether there is a bar or not
+        assert "INFO: train: 6 views at 32x24 px, epochs 1 to 1; a checkpoint every 5 epochs in " in err, err
+
+
+@pytest.mark.parametrize("tty, quiet, progress", [(True, False, True), (True, True, False), (False, False, False)])
+def test_evaluate_bars_only_on_a_terminal_and_never_with_q(tmp_path, monkeypatch, tty, quiet, progress):
+    """What evaluate is asked to draw (its work is replaced: the full run is tested below)."""
+    import sys
+
+    from sparself import evaluate as ev
+
+    seen = {}
+
+    def fake(paths, out, cfg, overwrite=False):
+        seen["progress"] = cfg.progress
+        return {"scenes": [{"name": "x", "status": "ok"}]}
+
+    monkeypatch.setattr(ev, "evaluate", fake)
+    if tty:
+        monkeypatch.setattr(sys, "stderr", _Terminal())
+    assert main(["evaluate", str(tmp_path), "--out", str(tmp_path / "o")] + (["-q"] if quiet else [])) == 0
+    assert seen["progress"] is progress
+
+
+def test_evaluate_log_file_lpips_notice_and_report(tmp_path, monkeypatch):
+    """A real --quick evaluation with stderr going to a file: no bar fragments or escape codes, the LPIPS
+    notice said once, the report's LPIPS tables collapsed into the line that says why."""
+    import subprocess
+    import sys
+
+    import test_evaluate as te
+    from sparself.io import write_scene
+
+    write_scene(te._capture(tmp_path / "cap_images"), tmp_path / "cap", formats=("llff",))
+    env = dict(os.environ, TORCH_HOME=str(tmp_path / "torch"), OMP_NUM_THREADS="1")
+    env.pop("SPARSELF_LPIPS_DIR", None)
+    with open(tmp_path / "log.txt", "w") as log:
+        code = subprocess.call([sys.executable, "-m", "sparself.cli", "evaluate", str(tmp_path / "cap"), "--out",
+                                str(tmp_path / "report"), "--quick", "--size", "32", "--inputs", "5", "--epochs", "1",
+                                "--recon", "mpi"], stdout=log, stderr=subprocess.STDOUT, env=env)
+    text = (tmp_path / "log.txt").read_text()
+    assert code == 0, text
+    assert "\r" not in text and "\x1b" not in text and "it/s" not in text, text
+    assert text.count("LPIPS unavailable") == 1, text
+    assert text.strip().splitlines()[-1].startswith("evaluated 1 scene(s) -> ")
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "| unavailable |" not in md and "LPIPS ↓: unavailable: weights not found" in md
+    page = (tmp_path / "report" / "report.html").read_text()
+    assert "<td>unavailable</td>" not in page and "LPIPS ↓: unavailable: weights not found" in page
+
+
+def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(small_run, tmp_path, capsys, monkeypatch):
+    import shlex
+
+    import sparself.train as tr
+
+    real = tr._append_log
+
+    def stop_at_7(path, epoch, *a):
+        if epoch == 7:
+            raise KeyboardInterrupt
+        real(path, epoch, *a)
+
+    monkeypatch.setattr(tr, "_append_log", stop_at_7)
+    code, out, err = run(capsys, "train", small_run / "scene", "--out", tmp_path / "run", "--epochs", "8",
+                         *TRAIN[2:], "-q")
+    assert code == 130 and out == "", err
+    lines = [ln for ln in err.splitlines() if ln.startswith("sparself train:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    line = lines[0]
+    prefix = "sparself train: interrupted; the checkpoint at epoch 5 is kept in "
+    assert line.startswith(prefix + str(tmp_path / "run" / "checkpoint.pt") + "; continue with: sparself train "), line
+    command = line.split("; continue with: ")[1]
+    assert command.endswith(" --resume") and "--epochs 8" in command
+    monkeypatch.setattr(tr, "_append_log", real)
+    code, out, err = run(capsys, *shlex.split(command)[1:])  # the command as printed, run as it is
+    assert code == 0, err
+    assert tr.checkpoint_epoch(tmp_path / "run") == 8
+    assert (tmp_path / "run" / "train_log.csv").read_text().count("\n") == 9  # header + epochs 1..8
+
+
+def test_repeated_per_view_messages_are_said_once_with_a_count(tmp_path, capsys):
+    from PIL import Image
+
+    scene = write_posed(tmp_path / "s", make_scene(6), "colmap")
+    for name in ("01.png", "02.png", "03.png", "04.png"):
+        p = scene / "images" / name
+        Image.open(p).convert("L").save(p)
+    code, out, err = run(capsys, "train", scene, "--out", tmp_path / "run", *TRAIN)
+    assert code == 0, err
+    said = [ln for ln in err.splitlines() if "converted to RGB" in ln]
+    assert said == ["WARNING: 01.png: L image converted to RGB",
+                    "WARNING: 02.png, 03.png, 04.png (3 more): L image converted to RGB"], err
+    assert err.count("guessing near/far") <= 1
+
+
+def test_llff_focal_scaling_said_once(tmp_path, capsys):
+    scene = write_posed(tmp_path / "s", make_scene(6), "llff")
+    arr = np.load(scene / "poses_bounds.npy")
+    arr[:, 4], arr[:, 9], arr[:, 14] = 48, 64, arr[:, 14] * 2  # poses for images twice the size
+    np.save(scene / "poses_bounds.npy", arr)
+    code, out, err = run(capsys, "info", scene)
+    assert code == 0, err
+    said = [ln for ln in err.splitlines() if "scaling focal" in ln]
+    assert said == ["INFO: poses_bounds.npy: 6 of 6 images are 32x24, poses say 64x48; scaling focal by 0.5000"]
+
+
+def test_info_separates_real_and_synthesized_views_and_says_where_bounds_come_from(small_run, tmp_path, capsys):
+    code, out, err = _synth(capsys, small_run, tmp_path / "dense")
+    assert code == 0, err
+    code, out, err = run(capsys, "info", tmp_path / "dense")
+    assert "views:         10 (6 real + 4 synthesized)" in out
+    assert "from a guess from the camera layout" in out and "no stored bounds" in out
+    code, out, err = run(capsys, "info", tmp_path / "dense", "--json")
+    info = json.loads(out)
+    assert (info["views"], info["real_views"], info["synthesized_views"]) == (10, 6, 4)
+    llff = write_posed(tmp_path / "llff", make_scene(6), "llff")
+    code, out, err = run(capsys, "info", llff)
+    assert "views:         6 (6 real + 0 synthesized)" in out
+    assert "depth bounds:  near 1, far 5, from the near/far bounds stored in poses_bounds.npy" in out
