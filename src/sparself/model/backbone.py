@@ -128,7 +128,7 @@ def _check_weights_file(path: Path) -> None:
     if not head:
         raise InputError(f"{path}: weights file is empty (0 bytes); {_WEIGHTS_HINT}")
     if not (head.startswith(b"PK") or head[:1] == b"\x80"):
-        raise InputError(f"{path}: not a torch weights file (neither a zip archive nor a pickle, as torch.save "
+        raise InputError(f"{path}: cannot read as torch weights: not a zip archive or a pickle (what torch.save "
                          f"writes); {_WEIGHTS_HINT}")
 
 
