@@ -124,9 +124,9 @@ def _moved_scene(n: int = 6, dx: float = 0.1) -> "object":
 
 
 @pytest.fixture(scope="module")
-def small_run(tmp_path_factory):
+def run6(tmp_path_factory):
     """A 6-view scene, trained (1 epoch) from a relative path, and its plan; plus other scenes and plans."""
-    root = tmp_path_factory.mktemp("small_run")
+    root = tmp_path_factory.mktemp("run6")
     write_posed(root / "scene", make_scene(6), "colmap")
     write_posed(root / "eight", make_scene(8), "colmap")
     write_posed(root / "renamed", make_scene(6, ext=".jpg"), "colmap")
@@ -147,13 +147,13 @@ def _synth(capsys, root: Path, out: Path, *extra, run_dir=None, plan=None):
                "--out", out, "-q", *extra)
 
 
-def test_run_records_its_scene_absolutely_and_synthesizes_from_elsewhere(small_run, tmp_path, capsys, monkeypatch):
+def test_run_records_its_scene_absolutely_and_synthesizes_from_elsewhere(run6, tmp_path, capsys, monkeypatch):
     import torch
 
-    meta = torch.load(small_run / "run" / "checkpoint.pt", weights_only=False)["meta"]
+    meta = torch.load(run6 / "run" / "checkpoint.pt", weights_only=False)["meta"]
     assert Path(meta["scene"]).is_absolute() and Path(meta["scene"]).exists()
     monkeypatch.chdir(tmp_path)  # another working directory
-    code, out, err = _synth(capsys, small_run, tmp_path / "dense")
+    code, out, err = _synth(capsys, run6, tmp_path / "dense")
     assert code == 0, err
     assert (tmp_path / "dense" / "transforms.json").is_file()
 
@@ -163,14 +163,14 @@ def test_run_records_its_scene_absolutely_and_synthesizes_from_elsewhere(small_r
     ("renamed", ("plan_renamed.json", "plan was made for other views", "00.jpg")),
     ("wider", ("plan_wider.json", "cameras elsewhere")),
 ])
-def test_plan_made_for_another_scene_is_refused(small_run, tmp_path, capsys, other, needles):
-    code, _, err = _synth(capsys, small_run, tmp_path / "dense", plan=small_run / f"plan_{other}.json")
+def test_plan_made_for_another_scene_is_refused(run6, tmp_path, capsys, other, needles):
+    code, _, err = _synth(capsys, run6, tmp_path / "dense", plan=run6 / f"plan_{other}.json")
     one_error(code, err, "synthesize", *needles, case=f"plan for another scene ({other}) [synthesize]")
     assert not (tmp_path / "dense").exists()
 
 
-def _edited_plan(small_run: Path, dst: Path, edit) -> Path:
-    doc = json.loads((small_run / "plan_scene.json").read_text())
+def _edited_plan(run6: Path, dst: Path, edit) -> Path:
+    doc = json.loads((run6 / "plan_scene.json").read_text())
     edit(doc)
     dst.write_text(json.dumps(doc))
     return dst
@@ -187,43 +187,43 @@ def _far_index(doc: dict) -> None:
     ("version", lambda d: d.__setitem__("version", 2), ("plan version 2", "version 1")),
     ("far index", _far_index, ("planned index 23.5", "outside this scene's views 0..5")),
 ])
-def test_plan_version_emptiness_and_index_range(small_run, tmp_path, capsys, case, edit, needles):
-    plan = _edited_plan(small_run, tmp_path / "p.json", edit)
-    code, _, err = _synth(capsys, small_run, tmp_path / "dense", plan=plan)
+def test_plan_version_emptiness_and_index_range(run6, tmp_path, capsys, case, edit, needles):
+    plan = _edited_plan(run6, tmp_path / "p.json", edit)
+    code, _, err = _synth(capsys, run6, tmp_path / "dense", plan=plan)
     one_error(code, err, "synthesize", "p.json", *needles, case=f"plan {case} [synthesize]")
     assert not (tmp_path / "dense").exists()
 
 
-def test_plan_of_nothing_is_refused(small_run, tmp_path, capsys):
-    code, _, err = run(capsys, "plan", small_run / "scene", "--out", tmp_path / "p.json", "--n-mid", "0",
+def test_plan_of_nothing_is_refused(run6, tmp_path, capsys):
+    code, _, err = run(capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "0",
                        "--n-extra", "0")
     one_error(code, err, "plan", "--n-mid 0", "--n-extra 0", case="empty plan [plan]")
     assert not (tmp_path / "p.json").exists()
 
 
-def test_synthesize_with_another_scene_is_refused(small_run, tmp_path, capsys):
-    code, _, err = _synth(capsys, small_run, tmp_path / "dense", "--scene", small_run / "wider")
+def test_synthesize_with_another_scene_is_refused(run6, tmp_path, capsys):
+    code, _, err = _synth(capsys, run6, tmp_path / "dense", "--scene", run6 / "wider")
     one_error(code, err, "synthesize", "wider", "not the scene the run", "cameras are elsewhere",
               case="--scene of another capture [synthesize]")
 
 
-def test_moved_scene_says_pass_scene(small_run, tmp_path, capsys):
+def test_moved_scene_says_pass_scene(run6, tmp_path, capsys):
     run_dir, scene = tmp_path / "run", tmp_path / "scene"
-    shutil.copytree(small_run / "run", run_dir)
-    shutil.copytree(small_run / "scene", scene)
+    shutil.copytree(run6 / "run", run_dir)
+    shutil.copytree(run6 / "scene", scene)
     import torch
 
     ck = torch.load(run_dir / "checkpoint.pt", weights_only=False)
     ck["meta"]["scene"] = str(tmp_path / "gone" / "sparse" / "0")  # the scene was moved away
     torch.save(ck, run_dir / "checkpoint.pt")
-    code, _, err = _synth(capsys, small_run, tmp_path / "dense", run_dir=run_dir)
+    code, _, err = _synth(capsys, run6, tmp_path / "dense", run_dir=run_dir)
     one_error(code, err, "synthesize", "gone", "not there any more", "pass --scene", case="moved scene [synthesize]")
-    code, _, err = _synth(capsys, small_run, tmp_path / "dense", "--scene", scene, run_dir=run_dir)
+    code, _, err = _synth(capsys, run6, tmp_path / "dense", "--scene", scene, run_dir=run_dir)
     assert code == 0, err
 
 
-def test_swapped_synthesize_arguments(small_run, tmp_path, capsys):
-    code, _, err = run(capsys, "synthesize", small_run / "plan_scene.json", "--plan", small_run / "run",
+def test_swapped_synthesize_arguments(run6, tmp_path, capsys):
+    code, _, err = run(capsys, "synthesize", run6 / "plan_scene.json", "--plan", run6 / "run",
                        "--out", tmp_path / "dense")
     one_error(code, err, "synthesize", "plan_scene.json", "arguments are swapped", case="swapped arguments")
     assert not (tmp_path / "dense").exists()
@@ -231,11 +231,11 @@ def test_swapped_synthesize_arguments(small_run, tmp_path, capsys):
 
 @pytest.mark.parametrize("other, needles", [("eight", ("trained on 6 views", "has 8")),
                                             ("wider", ("cameras are elsewhere",))])
-def test_resume_on_another_scene_is_refused(small_run, tmp_path, capsys, other, needles):
+def test_resume_on_another_scene_is_refused(run6, tmp_path, capsys, other, needles):
     run_dir = tmp_path / "run"
-    shutil.copytree(small_run / "run", run_dir)
+    shutil.copytree(run6 / "run", run_dir)
     before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
-    code, _, err = run(capsys, "train", small_run / other, "--out", run_dir, *TRAIN[:1], "2", *TRAIN[2:],
+    code, _, err = run(capsys, "train", run6 / other, "--out", run_dir, *TRAIN[:1], "2", *TRAIN[2:],
                        "--resume", "-q")
     one_error(code, err, "train", other, "not the scene", "resume with that scene", *needles,
               case=f"--resume on another scene ({other}) [train]")
@@ -253,22 +253,22 @@ def _one_stdout_line(out: str) -> str:
     return lines[0]
 
 
-def test_every_command_ends_with_a_summary(small_run, tmp_path, capsys):
+def test_every_command_ends_with_a_summary(run6, tmp_path, capsys):
     import re
 
-    code, out, err = run(capsys, "train", small_run / "scene", "--out", tmp_path / "run", *TRAIN, "-q")
+    code, out, err = run(capsys, "train", run6 / "scene", "--out", tmp_path / "run", *TRAIN, "-q")
     assert code == 0, err
     line = _one_stdout_line(out)
     assert re.match(rf"trained 1 epoch\(s\) on 6 real views -> {re.escape(str(tmp_path / 'run'))} "
                     rf"\(checkpoint.pt, config.json, train_log.csv\){SUMMARY}", line), line
-    code, out, err = run(capsys, "plan", small_run / "scene", "--out", tmp_path / "p.json", "--n-mid", "3",
+    code, out, err = run(capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "3",
                          "--n-extra", "1", "-q")
     assert code == 0 and re.match(rf"planned 4 novel poses -> .*p.json{SUMMARY}", _one_stdout_line(out)), out
-    code, out, err = _synth(capsys, small_run, tmp_path / "dense", plan=tmp_path / "p.json")
+    code, out, err = _synth(capsys, run6, tmp_path / "dense", plan=tmp_path / "p.json")
     line = _one_stdout_line(out)
     assert code == 0 and re.match(rf"wrote 10 views \(6 real \+ 4 synthesized\) -> .*dense \(images/, sparse/0, "
                                   rf"poses_bounds.npy, transforms.json\){SUMMARY}", line), line
-    code, out, err = run(capsys, "densify", small_run / "scene", "--out", tmp_path / "d", *TRAIN, "--n-mid", "2",
+    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *TRAIN, "--n-mid", "2",
                          "--n-extra", "1", "-q")
     line = _one_stdout_line(out)
     assert code == 0 and re.match(rf"wrote 9 views \(6 real \+ 3 synthesized\) -> .*d/scene \(run: .*d/run, "
@@ -295,13 +295,13 @@ class _Terminal:
 
 
 @pytest.mark.parametrize("tty, quiet, bar", [(True, False, True), (True, True, False), (False, False, False)])
-def test_training_bar_only_on_a_terminal_and_never_with_q(small_run, tmp_path, capsys, monkeypatch, tty, quiet, bar):
+def test_training_bar_only_on_a_terminal_and_never_with_q(run6, tmp_path, capsys, monkeypatch, tty, quiet, bar):
     import sys
 
     term = _Terminal()
     if tty:
         monkeypatch.setattr(sys, "stderr", term)
-    code = main([str(a) for a in ("train", small_run / "scene", "--out", tmp_path / "run", *TRAIN)]
+    code = main([str(a) for a in ("train", run6 / "scene", "--out", tmp_path / "run", *TRAIN)]
                 + (["-q"] if quiet else []))
     err = term.buf.getvalue() if tty else capsys.readouterr().err
     assert code == 0, err
@@ -361,7 +361,7 @@ def test_evaluate_log_file_lpips_notice_and_report(tmp_path, monkeypatch):
     assert "<td>unavailable</td>" not in page and "LPIPS ↓: unavailable: weights not found" in page
 
 
-def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(small_run, tmp_path, capsys, monkeypatch):
+def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(run6, tmp_path, capsys, monkeypatch):
     import shlex
 
     import sparself.train as tr
@@ -374,7 +374,7 @@ def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(small_run, tm
         real(path, epoch, *a)
 
     monkeypatch.setattr(tr, "_append_log", stop_at_7)
-    code, out, err = run(capsys, "train", small_run / "scene", "--out", tmp_path / "run", "--epochs", "8",
+    code, out, err = run(capsys, "train", run6 / "scene", "--out", tmp_path / "run", "--epochs", "8",
                          *TRAIN[2:], "-q")
     assert code == 130 and out == "", err
     lines = [ln for ln in err.splitlines() if ln.startswith("sparself train:")]
@@ -417,8 +417,8 @@ def test_llff_focal_scaling_said_once(tmp_path, capsys):
     assert said == ["INFO: poses_bounds.npy: 6 of 6 images are 32x24, poses say 64x48; scaling focal by 0.5000"]
 
 
-def test_info_separates_real_and_synthesized_views_and_says_where_bounds_come_from(small_run, tmp_path, capsys):
-    code, out, err = _synth(capsys, small_run, tmp_path / "dense")
+def test_info_separates_real_and_synthesized_views_and_says_where_bounds_come_from(run6, tmp_path, capsys):
+    code, out, err = _synth(capsys, run6, tmp_path / "dense")
     assert code == 0, err
     code, out, err = run(capsys, "info", tmp_path / "dense")
     assert "views:         10 (6 real + 4 synthesized)" in out
