@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from sparself.cli import main
-from test_bad_input import listing, make_scene, one_error, run, write_posed
+from planescene import noise_scene as make_scene
+from test_bad_input import listing, one_error, run, write_posed
 
 TRAIN = ("--epochs", "1", "--size", "32", "--crop", "16", "--device", "cpu", "--batch-size", "6")
 
