@@ -431,3 +431,17 @@ def test_info_separates_real_and_synthesized_views_and_says_where_bounds_come_fr
     code, out, err = run(capsys, "info", llff)
     assert "views:         6 (6 real + 0 synthesized)" in out
     assert "depth bounds:  near 1, far 5, from the near/far bounds stored in poses_bounds.npy" in out
+
+
+def test_ctrl_c_in_densify_says_nothing_was_written(run6, tmp_path, capsys, monkeypatch):
+    import sparself.train as tr
+
+    def stop(*a):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tr, "_append_log", stop)
+    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *TRAIN, "-q")
+    assert code == 130 and out == "", err
+    lines = [ln for ln in err.splitlines() if ln.startswith("sparself densify:")]
+    assert lines == [f"sparself densify: interrupted; nothing was written to {tmp_path / 'd'}; run the command again"]
+    assert listing(tmp_path) == []  # no output, no hidden temporary folder
