@@ -55,6 +55,26 @@ def test_camera_missing_from_cameras_txt(tmp_path, capsys):
     assert "Rig" not in line and "(it lists 1)" in line
 
 
+@pytest.mark.parametrize("case, pack, needles", [
+    ("zero quaternion", ("<4d", 12, (0.0, 0.0, 0.0, 0.0)), ("quaternion", "is zero")),
+    ("camera id missing", ("<I", 68, (7,)), ("camera 7 is not in", "cameras.bin", "(it lists 1)")),
+])
+def test_binary_model_zero_quaternion_and_missing_camera(tmp_path, capsys, case, pack, needles):
+    """The same checks in images.bin (image 1's record: id at byte 8, qvec at 12, camera id at 68)."""
+    import struct
+
+    scene = write_posed(tmp_path / "s", make_scene(6), "colmap")
+    p = scene / "sparse" / "0" / "images.bin"
+    data = bytearray(p.read_bytes())
+    assert struct.unpack_from("<I4dI", data, 8)[:2] == (1, 1.0) and struct.unpack_from("<I", data, 68) == (1,)
+    fmt, off, vals = pack
+    struct.pack_into(fmt, data, off, *vals)
+    p.write_bytes(bytes(data))
+    code, _, err = run(capsys, "info", scene)
+    line = one_error(code, err, "info", "images.bin", "image 1 (00.png)", *needles, case=f"{case} (binary) [info]")
+    assert "Rig" not in line and "Check failed" not in line
+
+
 def test_text_file_named_poses_bounds_npy(tmp_path, capsys):
     scene = write_posed(tmp_path / "s", make_scene(6), "llff")
     (scene / "poses_bounds.npy").write_text("0 0 0 1\n")

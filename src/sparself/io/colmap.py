@@ -64,8 +64,8 @@ def _check_model_files(model_dir: Path) -> None:
         f = b if b.is_file() else t
         if f.stat().st_size == 0 and stem != "points3D":
             raise InputError(f"{f}: file is empty (0 bytes)")
-        if f is t and stem in _TEXT_LAYOUT:
-            ids = _check_text_model(t, stem, camera_ids)
+        if stem in _TEXT_LAYOUT:
+            ids = _check_text_model(t, stem, camera_ids) if f is t else _check_binary_model(b, stem, camera_ids)
             camera_ids = ids if stem == "cameras" else camera_ids
 
 
@@ -99,19 +99,56 @@ def _check_text_model(path: Path, stem: str, camera_ids: set[int] | None = None)
         check_finite(vals, where)
         ids.add(int(vals[0]))
         if stem == "images":
-            _check_image_line(where, vals, fields[9], camera_ids, path)
+            _check_image_line(where, vals, fields[9], camera_ids, path.parent / "cameras.txt")
             k += 1  # the next line lists the image's 2D points (possibly empty)
     return ids
 
 
-def _check_image_line(where: str, vals: np.ndarray, name: str, camera_ids: set[int] | None, path: Path) -> None:
+def _check_image_line(where: str, vals: np.ndarray, name: str, camera_ids: set[int] | None,
+                      cameras_file: Path) -> None:
     if np.linalg.norm(vals[1:5]) < 1e-12:
         raise InputError(f"{where} ({name}): quaternion QW QX QY QZ is zero, which is no rotation "
                          "(identity is 1 0 0 0)")
     cam = int(vals[8])
     if camera_ids is not None and cam not in camera_ids:
-        raise InputError(f"{where} ({name}): camera {cam} is not in {path.parent / 'cameras.txt'} "
+        raise InputError(f"{where} ({name}): camera {cam} is not in {cameras_file} "
                          f"(it lists {', '.join(map(str, sorted(camera_ids))) or 'none'})")
+
+
+# COLMAP camera model id -> number of parameters (colmap/sensor/models.h)
+_NUM_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 16}
+
+
+def _check_binary_model(path: Path, stem: str, camera_ids: set[int] | None) -> set[int] | None:
+    """What :func:`_check_text_model` checks, in cameras.bin / images.bin: a zero quaternion (pycolmap
+    reads it as the identity) and an image whose camera is missing ("Rig with ID 7 does not exist").
+    Returns the ids read, or None for a layout it does not know (pycolmap then has the last word)."""
+    import struct
+
+    ids: set[int] = set()
+    try:
+        with open(path, "rb") as f:
+            (n,) = struct.unpack("<Q", f.read(8))
+            for _ in range(n):
+                if stem == "cameras":
+                    cid, model, _w, _h = struct.unpack("<iiQQ", f.read(24))
+                    if model not in _NUM_PARAMS:
+                        return None
+                    f.seek(8 * _NUM_PARAMS[model], 1)
+                    ids.add(cid)
+                    continue
+                iid, qw, qx, qy, qz, _tx, _ty, _tz, cid = struct.unpack("<I7dI", f.read(64))
+                name = b"".join(iter(lambda: f.read(1), b"\0")).decode("utf-8", "replace")
+                (npts,) = struct.unpack("<Q", f.read(8))
+                f.seek(24 * npts, 1)
+                vals = np.array([iid, qw, qx, qy, qz, 0, 0, 0, cid], dtype=np.float64)
+                _check_image_line(f"{path}: image {iid}", vals, name, camera_ids, path.parent / "cameras.bin")
+                ids.add(iid)
+    except struct.error:
+        return None  # truncated: pycolmap's message names the file
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    return ids
 
 
 def load_reconstruction(model_dir: Path):
