@@ -280,7 +280,7 @@ def test_every_command_ends_with_a_summary(run6, tmp_path, capsys):
     code, out, err = run(capsys, "train", run6 / "scene", "--out", tmp_path / "run", *TRAIN, "-q")
     assert code == 0, err
     line = _one_stdout_line(out)
-    assert re.match(rf"trained 1 epoch\(s\) on 6 real views -> {re.escape(str(tmp_path / 'run'))} "
+    assert re.match(rf"trained 1 epoch on 6 real views -> {re.escape(str(tmp_path / 'run'))} "
                     rf"\(checkpoint.pt, config.json, train_log.csv\){SUMMARY}", line), line
     code, out, err = run(capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "3",
                          "--n-extra", "1", "-q")
