@@ -412,7 +412,7 @@ def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(run6, tmp_pat
     assert (tmp_path / "run" / "train_log.csv").read_text().count("\n") == 9  # header + epochs 1..8
 
 
-def test_repeated_per_view_messages_are_said_once_with_a_count(tmp_path, capsys):
+def test_repeated_per_view_messages_are_said_once_with_a_count(run6, tmp_path, capsys):
     from PIL import Image
 
     scene = write_posed(tmp_path / "s", make_scene(6), "colmap")
@@ -422,9 +422,33 @@ def test_repeated_per_view_messages_are_said_once_with_a_count(tmp_path, capsys)
     code, out, err = run(capsys, "train", scene, "--out", tmp_path / "run", *TRAIN)
     assert code == 0, err
     said = [ln for ln in err.splitlines() if "converted to RGB" in ln]
-    assert said == ["WARNING: 01.png: L image converted to RGB",
-                    "WARNING: 02.png, 03.png, 04.png (3 more): L image converted to RGB"], err
-    assert err.count("guessing near/far") <= 1
+    assert len(said) == 1 and "4 grayscale" in said[0] and "01.png, 02.png, 03.png, 04.png" in said[0], err
+    # synthesize reads the scene's depth bounds more than once: the warning is said once
+    code, out, err = run(capsys, "synthesize", run6 / "run", "--plan", run6 / "plan_scene.json",
+                         "--out", tmp_path / "dense")
+    assert code == 0, err
+    assert err.count("guessing near/far from camera layout") == 1, err
+
+
+def test_messages_about_many_files_are_collected():
+    """The CLI's filter: the same message again is dropped; '<file>: <what>' for other files is counted
+    and said once at the end, naming them."""
+    import logging
+
+    from sparself.cli import _Repeats
+
+    rep = _Repeats()
+
+    def rec(msg, *args):
+        return logging.LogRecord("sparself.x", logging.WARNING, __file__, 1, msg, args, None)
+
+    shown = [r.getMessage() for r in (rec("%s: distortion dropped", f"{i:02d}.png") for i in range(8))
+             if rep.filter(r)]
+    shown += [r.getMessage() for r in (rec("no bounds; guessing"), rec("no bounds; guessing"),
+                                       rec("%s: %s image converted", "a.png", "RGBA")) if rep.filter(r)]
+    assert shown == ["00.png: distortion dropped", "no bounds; guessing", "a.png: RGBA image converted"]
+    assert [r.getMessage() for r in rep.rest()] == ["01.png, 02.png, 03.png, 04.png, 05.png, ... (7 more): "
+                                                    "distortion dropped"]
 
 
 def test_llff_focal_scaling_said_once(tmp_path, capsys):
