@@ -20,6 +20,7 @@ from planescene import noise_scene as make_scene
 from test_bad_input import listing, one_error, run, write_posed
 
 TRAIN = ("--epochs", "1", "--size", "32", "--crop", "16", "--device", "cpu", "--batch-size", "6")
+DENSIFY = ("--epochs", "1", "--crop", "16", "--device", "cpu", "--batch-size", "6")  # trains at the scene's size
 
 
 def _colmap_text(folder: Path, n: int = 6) -> Path:
@@ -289,7 +290,7 @@ def test_every_command_ends_with_a_summary(run6, tmp_path, capsys):
     line = _one_stdout_line(out)
     assert code == 0 and re.match(rf"wrote 10 views \(6 real \+ 4 synthesized\) -> .*dense \(images/, sparse/0, "
                                   rf"poses_bounds.npy, transforms.json\){SUMMARY}", line), line
-    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *TRAIN, "--n-mid", "2",
+    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *DENSIFY, "--n-mid", "2",
                          "--n-extra", "1", "-q")
     line = _one_stdout_line(out)
     assert code == 0 and re.match(rf"wrote 9 views \(6 real \+ 3 synthesized\) -> .*d/scene \(run: .*d/run, "
@@ -484,7 +485,7 @@ def test_ctrl_c_in_densify_says_nothing_was_written(run6, tmp_path, capsys, monk
         raise KeyboardInterrupt
 
     monkeypatch.setattr(tr, "_append_log", stop)
-    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *TRAIN, "-q")
+    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *DENSIFY, "-q")
     assert code == 130 and out == "", err
     lines = [ln for ln in err.splitlines() if ln.startswith("sparself densify:")]
     assert lines == [f"sparself densify: interrupted; nothing was written to {tmp_path / 'd'}; run the command again"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 from pathlib import Path
 
 from . import __version__
@@ -53,9 +54,46 @@ class _BarSafeHandler(logging.Handler):
             self.handleError(record)
 
 
+class _Repeats(logging.Filter):
+    """Say a repeated message once. An identical one is dropped; one that differs only in its first
+    argument, the file or view it is about ("%s: L image converted to RGB"), is counted, and the others
+    it was said for are named together at the end (:meth:`rest`)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[tuple[int, str]] = set()
+        self.more: dict[tuple, tuple[logging.LogRecord, list[str]]] = {}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if (record.levelno, text) in self.seen:
+            return False
+        self.seen.add((record.levelno, text))
+        args = record.args if isinstance(record.args, tuple) else ()
+        if not args or not str(record.msg).startswith("%s: "):  # "<file>: <what about it>"
+            return True
+        key = (record.levelno, record.msg, tuple(map(repr, args[1:])))
+        if key not in self.more:
+            self.more[key] = (record, [])
+            return True
+        self.more[key][1].append(str(args[0]))
+        return False
+
+    def rest(self) -> list[logging.LogRecord]:
+        """One record per message said for more than one file: '02.png, 03.png (2 more): ...'."""
+        out = []
+        for rec, names in self.more.values():
+            if names:
+                who = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "") + f" ({len(names)} more)"
+                out.append(logging.makeLogRecord({**vars(rec), "msg": rec.msg % ((who,) + rec.args[1:]),
+                                                  "args": None}))
+        return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # for the exact --resume command after Ctrl-C
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
@@ -63,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     # a handler on our own logger, removed afterwards, so that main() can be called in-process (tests)
     handler = _BarSafeHandler()
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    repeats = _Repeats()
+    handler.addFilter(repeats)
     pkg = logging.getLogger("sparself")
     old_level, old_propagate = pkg.level, pkg.propagate
     pkg.addHandler(handler)
@@ -75,16 +115,30 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"sparself {args.command}: error: {e}", file=sys.stderr)
         return e.exit_code
-    except KeyboardInterrupt:
-        print(f"sparself {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(f"sparself {args.command}: interrupted" + (f"; {e}" if str(e) else ""), file=sys.stderr)
         return 130
     finally:
+        for rec in repeats.rest():
+            handler.handle(rec)
         pkg.removeHandler(handler)
         pkg.setLevel(old_level)
         pkg.propagate = old_propagate
 
 
 # ---- commands ------------------------------------------------------------------------------------
+
+def _took(t0: float) -> str:
+    """Wall time since ``t0`` for a command's summary line: '3.2 s', '4 min 05 s'."""
+    s = time.perf_counter() - t0
+    return f"{s:.1f} s" if s < 120 else f"{int(s // 60)} min {int(s % 60):02d} s"
+
+
+def _views(scene) -> str:
+    """'6 views (4 real + 2 synthesized)' of a scene whose frames say which are synthetic."""
+    syn = sum(1 for f in scene.frames if f.synthetic)
+    return f"{len(scene)} views ({len(scene) - syn} real + {syn} synthesized)"
+
 # (each helper appends its _add_* function here and to _COMMANDS)
 
 
@@ -143,8 +197,10 @@ def _add_plan(sub) -> None:
 def _run_plan(args) -> int:
     from .plan import make_plan
 
+    t0 = time.perf_counter()
     frames = make_plan(args.scene, args.out, _plan_config(args), plot=args.plot, overwrite=args.overwrite)
-    print(f"planned {len(frames)} novel poses -> {args.out}" + (f" (plot: {args.plot})" if args.plot else ""))
+    print(f"planned {len(frames)} novel poses -> {args.out}" + (f" (plot: {args.plot})" if args.plot else "")
+          + f" in {_took(t0)}")
     return 0
 
 
@@ -194,11 +250,12 @@ def _run_evaluate(args) -> int:
     from .evaluate import EvalConfig, run_cli
     from .options import given
 
+    t0 = time.perf_counter()
     res = run_cli(args.scenes, args.out, args.manifest, quick=args.quick, overwrite=args.overwrite,
                   train_cfg=_train_config(args, skip=_EVAL_OWNS), **given(EvalConfig, args))
     bad = [s["name"] for s in res["scenes"] if s.get("status") != "ok"]
     print(f"evaluated {len(res['scenes']) - len(bad)} scene(s) -> {args.out / 'report.md'}"
-          + (f"; failed: {', '.join(bad)}" if bad else ""))
+          + (f"; failed: {', '.join(bad)}" if bad else "") + f" in {_took(t0)}")
     return 1 if bad and len(bad) == len(res["scenes"]) else 0
 
 
@@ -238,11 +295,12 @@ def _add_poses(sub) -> None:
 def _run_poses(args) -> int:
     from .sfm import SfmConfig, poses_to_folder
 
+    t0 = time.perf_counter()
     rep = poses_to_folder(args.photos, args.out, SfmConfig(matcher=args.matcher, max_image_size=args.max_image_size,
                                                            single_camera=args.single_camera, seed=args.seed,
                                                            debug=args.debug),
                           overwrite=args.overwrite, images="link" if args.link_images else "copy")
-    print(f"{rep.summary()} -> {args.out}")
+    print(f"{rep.summary()} -> {args.out} in {_took(t0)}")
     return 0
 
 
@@ -295,8 +353,31 @@ def _add_train(sub) -> None:
 def _run_train(args) -> int:
     from .train import train_scene
 
-    train_scene(args.scene, args.out, _train_config(args), resume=args.resume, overwrite=args.overwrite)
+    t0 = time.perf_counter()
+    try:
+        run = train_scene(args.scene, args.out, _train_config(args), resume=args.resume, overwrite=args.overwrite)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(_resume_hint(args)) from None
+    e = run.cfg.epochs
+    print(f"trained {e} epoch{'s' if e != 1 else ''} on {len(run.meta.sources)} real views -> {args.out} "
+          f"(checkpoint.pt, config.json, train_log.csv) in {_took(t0)}")
     return 0
+
+
+def _resume_hint(args) -> str:
+    """After Ctrl-C in `train`: which checkpoint is kept and the exact command that continues from it."""
+    import shlex
+
+    from .train import CHECKPOINT, CONFIG, checkpoint_epoch
+
+    argv = [a for a in args.argv if a != "--overwrite"]
+    again = "sparself " + shlex.join(argv + ([] if "--resume" in argv else ["--resume"]))
+    epoch = checkpoint_epoch(args.out)
+    if epoch is not None:
+        return f"the checkpoint at epoch {epoch} is kept in {args.out / CHECKPOINT}; continue with: {again}"
+    if (args.out / CONFIG).is_file():
+        return f"stopped before the first checkpoint; start again with: {again}"
+    return "nothing was written; run the command again"
 
 
 _COMMANDS.append(_add_train)
@@ -321,8 +402,11 @@ def _add_synthesize(sub) -> None:
 def _run_synthesize(args) -> int:
     from .synthesize import synthesize_plan
 
-    synthesize_plan(args.run, args.plan, args.out, scene_path=args.scene, overwrite=args.overwrite,
-                    downscaled=args.downscaled)
+    t0 = time.perf_counter()
+    dense = synthesize_plan(args.run, args.plan, args.out, scene_path=args.scene, overwrite=args.overwrite,
+                            downscaled=args.downscaled)
+    print(f"wrote {_views(dense)} -> {args.out} (images/, sparse/0, poses_bounds.npy, transforms.json) "
+          f"in {_took(t0)}")
     return 0
 
 
@@ -349,9 +433,15 @@ def _add_densify(sub) -> None:
 def _run_densify(args) -> int:
     from .pipeline import DensifyConfig, densify
 
-    densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=_plan_config(args),
-                                                 out_size=args.out_size, overwrite=args.overwrite,
-                                                 downscaled=args.downscaled))
+    t0 = time.perf_counter()
+    try:
+        dense = densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=_plan_config(args),
+                                                             out_size=args.out_size, overwrite=args.overwrite,
+                                                             downscaled=args.downscaled))
+    except KeyboardInterrupt:  # its output appears whole or not at all
+        raise KeyboardInterrupt(f"nothing was written to {args.out}; run the command again") from None
+    print(f"wrote {_views(dense)} -> {args.out / 'scene'} (run: {args.out / 'run'}, plan: "
+          f"{args.out / 'plan.json'}) in {_took(t0)}")
     return 0
 
 

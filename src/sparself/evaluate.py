@@ -656,4 +656,7 @@ def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None
         raise InputError("no scenes given (pass scene folders or --manifest FILE)")
     cfg = EvalConfig.quick() if quick else EvalConfig()
     cfg = replace(cfg, **{k: v for k, v in given.items() if v is not None}, train=train_cfg or cfg.train)
+    from .progress import show_progress
+
+    cfg = replace(cfg, progress=cfg.progress and show_progress())  # no bar fragments in a log file, none with -q
     return evaluate(paths, out, cfg, overwrite=overwrite)

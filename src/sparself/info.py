@@ -37,8 +37,8 @@ def depth_bounds_origin(scene: Scene) -> str:
 def scene_info(scene: Scene) -> dict:
     """A JSON-ready summary of a scene (no image is decoded).
 
-    Keys: views (real_views + synthesized_views), sizes, cameras (model, size, fx, fy, cx, cy, params, fov_deg), centers (min, max, extent),
-    scale, depth_bounds + depth_bounds_from, step (median distance and rotation between consecutive views).
+    Keys: views (real_views + synthesized_views), sizes, cameras (model, size, fx, fy, cx, cy, params,
+    fov_deg), centers (min, max, extent), scale, depth_bounds + depth_bounds_from, step (median distance and rotation between consecutive views).
     """
     cams = {}
     for cid, c in sorted(scene.cameras.items()):

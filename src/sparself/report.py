@@ -28,8 +28,9 @@ UNAVAILABLE = "unavailable"
 # ---- document model: a list of blocks rendered to both Markdown and HTML ---------------------------
 
 class _Doc:
-    def __init__(self) -> None:
+    def __init__(self, why_unavailable: str | None = None) -> None:
         self.blocks: list[tuple] = []
+        self.why_unavailable = why_unavailable  # a table of nothing but "unavailable" becomes this line
 
     def h(self, level: int, text: str) -> None:
         self.blocks.append(("h", level, text))
@@ -41,6 +42,14 @@ class _Doc:
         self.blocks.append(("ul", items))
 
     def table(self, header: list[str], rows: list[list[str]]) -> None:
+        cells = [c for r in rows for c in r[1:]]
+        if self.why_unavailable and cells and all(c == UNAVAILABLE for c in cells):
+            last = self.blocks[-1] if self.blocks else None
+            if last is not None and last[0] == "p":  # the table's caption: "LPIPS ↓: unavailable: ..."
+                self.blocks[-1] = ("p", f"{last[1]}: {self.why_unavailable}")
+            else:
+                self.p(self.why_unavailable)
+            return
         self.blocks.append(("table", header, rows))
 
     def img(self, path: str, alt: str) -> None:
@@ -230,7 +239,7 @@ def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
     ok = [s for s in scenes_all if s.get("status") == "ok"]
     c = _Ctx(results, ok, [s for s in scenes_all if s.get("status") != "ok"], _recon_names(ok),
              lpips_available(results), out_dir, fig_dir)
-    doc = _Doc()
+    doc = _Doc(None if c.lp else str(results.get("settings", {}).get("lpips_status") or UNAVAILABLE))
     doc.h(1, "sparself evaluation report")
     for section in (_protocol_section, _not_run_section, _densification_tables, _recon_comparisons,
                     _view_synthesis_tables, _figures, _examples, _closing_sections):

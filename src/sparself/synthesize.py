@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from . import io as sio
+from .consistency import recorded_scene, run_scene_mismatch
 from .errors import InputError
 from .model.query import Sources, flow_aligned, novel_queries, render
 from .outputs import check_output_dir
@@ -80,19 +81,30 @@ def densify_scene(scene: Scene, targets: list[Frame], images: np.ndarray) -> Sce
     return replace(scene, frames=frames, meta=dict(scene.meta, synthesized=len(new)))
 
 
+def _check_order(run_path: Path, plan: Path) -> None:
+    """A plan file given as RUN (and a run folder as --plan): say so instead of 'no checkpoint'."""
+    if run_path.is_file() and run_path.suffix.lower() == ".json" and plan.is_dir():
+        raise InputError(f"{run_path}: is a plan file and {plan} a run folder: the arguments are swapped "
+                         f"(sparself synthesize {plan} --plan {run_path} --out ...)")
+    if run_path.is_file() and run_path.suffix.lower() == ".json":
+        raise InputError(f"{run_path}: is a plan file, not a run folder (sparself synthesize RUN --plan "
+                         f"{run_path} --out ...)")
+
+
 def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, scene_path: Path | str | None = None,
                     overwrite: bool = False, downscaled: bool = True) -> Scene:
     """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene.
     downscaled: also write the ``images_2/4/8`` copies."""
+    _check_order(Path(run_path), Path(plan))
     check_output_dir(Path(out), overwrite)  # refuse a bad --out before loading anything
     run = load_run(run_path)
-    src_path = scene_path or run.meta.scene
-    if not src_path:
-        raise InputError(f"{run_path}: the run does not record its scene; pass --scene")
-    scene = sio.read_scene(Path(src_path))
+    scene = sio.read_scene(Path(scene_path) if scene_path else recorded_scene(run.meta, Path(run_path)))
+    why = run_scene_mismatch(run.meta, scene, run.cfg.holdout)
+    if why:
+        raise InputError(f"{scene.source}: not the scene the run {run_path} was trained on ({run.meta.scene}): {why}")
+    targets = load_plan(Path(plan), scene)  # validates the file, and that it was made for this scene
     hold = set(run.cfg.holdout)
     scene = scene.subset([i for i in range(len(scene)) if i not in hold])
-    targets = load_plan(Path(plan), scene)  # validates the file
     order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))

@@ -26,7 +26,6 @@ import json
 import logging
 import os
 import random
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +43,7 @@ from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights
 from .model.decoders import DECODERS, synthesis_loss
 from .model.query import Queries, Sources, flow_aligned, leave_one_out, render
 from .outputs import atomic_file, check_output_dir
+from .progress import show_progress
 from .scene import Scene, one_size
 
 log = logging.getLogger(__name__)
@@ -456,7 +456,7 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[Sourc
     meta = RunMeta(center=norm.center, scale=norm.scale, near=near, far=far, fc_hw=fc_grid(w, h, cfg.fc_side),
                    backbone_size=backbone_side(cfg, device), train_hw=(h, w),
                    sources=[src.frames[int(i)].name for i in sources.order],
-                   scene=str(scene.source) if scene.source else None)
+                   scene=str(Path(scene.source).resolve()) if scene.source else None)  # absolute: any cwd
     return sources.to(device).posed(norm, inverse_depth_planes(near, far, cfg.planes)), meta
 
 
@@ -528,8 +528,10 @@ def _epoch(s: _Session, cfg: TrainConfig) -> float:
 
 
 def _fit(s: _Session, out: Path, cfg: TrainConfig, meta: RunMeta, start: int, progress: bool | None) -> None:
+    log.info("train: %d views at %dx%d px, epochs %d to %d; a checkpoint every %d epochs in %s", len(meta.sources),
+             meta.train_hw[1], meta.train_hw[0], start + 1, cfg.epochs, cfg.checkpoint_every, out / CHECKPOINT)
     bar = tqdm(range(start, cfg.epochs), initial=start, total=cfg.epochs, desc="train", unit="epoch",
-               disable=(not sys.stderr.isatty()) if progress is None else not progress)
+               disable=not show_progress() if progress is None else not progress)
     s.model.train()
     with _deterministic(s.device):
         for epoch in bar:
@@ -556,6 +558,8 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     out = Path(out)
     device = resolve_device(cfg.device)
     ck = _resume_checkpoint(out, cfg, resume, overwrite)
+    if ck is not None:
+        _check_resume_scene(out, RunMeta.from_json(ck["meta"]), scene, cfg)
     random.seed(cfg.seed)
     np.random.seed(cfg.seed)
     torch.manual_seed(cfg.seed)
@@ -574,6 +578,15 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     _truncate_log(out / LOG, start)
     _fit(s, out, cfg, meta, start, progress)
     return Run(s.model, cfg, meta, out)
+
+
+def _check_resume_scene(out: Path, meta: RunMeta, scene: Scene, cfg: TrainConfig) -> None:
+    from .consistency import run_scene_mismatch
+
+    why = run_scene_mismatch(meta, scene, cfg.holdout)
+    if why:
+        raise ConfigError(f"{scene.source}: not the scene {out} was trained on ({meta.scene}): {why}; "
+                          "resume with that scene, or train a new run")
 
 
 def _save_checkpoint(path: Path, s: _Session, epoch: int, cfg: TrainConfig, meta: RunMeta) -> None:
@@ -604,3 +617,11 @@ def train_scene(scene_path: Path | str, out: Path | str, cfg: TrainConfig | None
                 resume: bool = False, overwrite: bool = False) -> Run:
     """`sparself train`: read a scene (anything ``sparself.io.read_scene`` accepts) and train on it."""
     return train(sio.read_scene(Path(scene_path)), out, cfg, resume=resume, overwrite=overwrite)
+
+
+def checkpoint_epoch(run_dir: Path | str) -> int | None:
+    """The epoch of a run folder's checkpoint, or None when it has none (or an unreadable one)."""
+    try:
+        return int(_read_checkpoint(Path(run_dir) / CHECKPOINT)["epoch"])
+    except (InputError, KeyError, TypeError, ValueError):
+        return None
