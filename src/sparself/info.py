@@ -11,13 +11,14 @@ import numpy as np
 from .geometry import quat_angle
 from .scene import Scene
 
-# the names `sparself synthesize` and `densify` give synthesized views (sparself.plan.novel_name)
-_NOVEL = re.compile(r"novel_-?\d+\.\d\d\.png")
+# the names sparself gives synthesized views (sparself.plan.novel_name, maybe behind a rank prefix)
+_NOVEL = re.compile(r"(^|_)novel_-?\d+\.\d\d\.png$")
 
 
 def synthesized_views(scene: Scene) -> list[str]:
-    """Names of the views sparself synthesized (flagged in memory, or named novel_*.png on disk)."""
-    return [f.name for f in scene.frames if f.synthetic or _NOVEL.fullmatch(Path(f.name).name)]
+    """Names of the views sparself synthesized: flagged by the reader (sparself.json), or, in a scene
+    without that record, named like them."""
+    return [f.name for f in scene.frames if f.synthetic or _NOVEL.search(Path(f.name).name)]
 
 
 def depth_bounds_origin(scene: Scene) -> str:
