@@ -387,9 +387,16 @@ def test_no_downscaled_reaches_densify_and_synthesize(monkeypatch):
     """--no-downscaled on both commands that write a dense scene; the copies are on by default."""
     from sparself import cli, pipeline, synthesize
 
+    from sparself.scene import Scene
+
     seen = {}
-    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg: seen.setdefault("densify", cfg.downscaled))
-    monkeypatch.setattr(synthesize, "synthesize_plan", lambda *a, downscaled, **k: seen.setdefault("synth", downscaled))
+
+    def keep(key, value):  # -> an empty scene, for the commands' summary lines
+        seen.setdefault(key, value)
+        return Scene({}, [])
+
+    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg: keep("densify", cfg.downscaled))
+    monkeypatch.setattr(synthesize, "synthesize_plan", lambda *a, downscaled, **k: keep("synth", downscaled))
     for flag, want in (([], True), (["--no-downscaled"], False)):
         seen.clear()
         assert cli.main(["densify", "p", "--out", "o", "-q", *flag]) == 0
