@@ -218,9 +218,6 @@ def _add_evaluate(sub) -> None:
     p.add_argument("scenes", type=Path, nargs="*", help="scene folders or pose files")
     p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
     p.add_argument("--manifest", type=Path, default=None, help="file listing scene paths, one per line")
-    p.add_argument("--quick", action="store_true",
-                   help="minutes instead of hours on a CPU: 64 px, 1 seed, 3 network epochs, short NeRF, at most 6 "
-                        "scored frames, one baseline densified")
     _eval_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     _common(p)
@@ -237,10 +234,13 @@ def _quick() -> dict:
 
 
 def _eval_options(p: argparse.ArgumentParser) -> None:
-    """EvalConfig's fields, then the network's training options (both built from their dataclasses)."""
+    """--quick, EvalConfig's fields, then the network's training options (both built from their dataclasses)."""
     from .evaluate import EvalConfig
     from .options import add_options
 
+    p.add_argument("--quick", action="store_true",
+                   help="minutes instead of hours on a CPU: 64 px, 1 seed, 3 network epochs, short NeRF, at most 6 "
+                        "scored frames, one baseline densified")
     add_options(p, EvalConfig, unset=True, notes={k: f"; --quick: {v}" for k, v in _quick().items()})
     g = p.add_argument_group("network training (as `sparself train`; seed, size and epochs are set above)")
     _train_options(g, skip=_EVAL_OWNS)
@@ -420,24 +420,34 @@ def _add_densify(sub) -> None:
                     "Writes OUT/scene (images/, sparse/0/, poses_bounds.npy, transforms.json) and OUT/run.")
     p.add_argument("photos", type=Path, help="folder of photos, or a posed scene")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    _plan_options(p)
-    p.add_argument("--out-size", type=int, default=None,
-                   help="long side in px of the written scene and of training (default: as read)")
-    _train_options(p, skip=("size",))
+    _densify_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     _export_options(p)
     _common(p)
     p.set_defaults(func=_run_densify)
 
 
+def _densify_options(p: argparse.ArgumentParser) -> None:
+    """The plan, the output size and the training options: shared by `densify` and `batch densify`."""
+    _plan_options(p)
+    p.add_argument("--out-size", type=int, default=None,
+                   help="long side in px of the written scene and of training (default: as read)")
+    _train_options(p, skip=("size",))
+
+
+def _densify_config(args, **kw):
+    from .pipeline import DensifyConfig
+
+    return DensifyConfig(train=_train_config(args), plan=_plan_config(args), out_size=args.out_size,
+                         downscaled=args.downscaled, **kw)
+
+
 def _run_densify(args) -> int:
-    from .pipeline import DensifyConfig, densify
+    from .pipeline import densify
 
     t0 = time.perf_counter()
     try:
-        dense = densify(args.photos, args.out, DensifyConfig(train=_train_config(args), plan=_plan_config(args),
-                                                             out_size=args.out_size, overwrite=args.overwrite,
-                                                             downscaled=args.downscaled))
+        dense = densify(args.photos, args.out, _densify_config(args, overwrite=args.overwrite))
     except KeyboardInterrupt:  # its output appears whole or not at all
         raise KeyboardInterrupt(f"nothing was written to {args.out}; run the command again") from None
     print(f"wrote {_views(dense)} -> {args.out / 'scene'} (run: {args.out / 'run'}, plan: "
@@ -446,6 +456,75 @@ def _run_densify(args) -> int:
 
 
 _COMMANDS.append(_add_densify)
+
+
+# ---- batch: many captures as Ray tasks --------------------------------------------------------------
+
+def _batch_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("manifest", type=Path,
+                   help="captures to run: a text file of paths (one a line), or JSON/YAML with per-capture options")
+    p.add_argument("--out", type=Path, required=True,
+                   help="batch folder: captures/<name>/ per capture, logs/, report.md/html, results.json; "
+                        "run again to resume")
+    g = p.add_argument_group("where the units run")
+    g.add_argument("--address", default=None,
+                   help="join a Ray cluster: auto (started with `ray start --head`) or ray://host:port; default: "
+                        "start Ray inside this command on this machine's CPUs")
+    g.add_argument("--local", action="store_true", help="no Ray: run the units one after another in this process")
+    g.add_argument("--workers", type=int, default=None, help="units at a time (default: as many as the CPUs/GPUs allow)")
+    g.add_argument("--cpus-per-task", type=int, default=1, help="CPU threads per unit (default 1)")
+    g.add_argument("--gpus-per-task", type=float, default=None,
+                   help="GPUs per unit (default: 1 when the cluster has GPUs and --device is not cpu, else 0)")
+
+
+def _add_batch(sub) -> None:
+    p = sub.add_parser(
+        "batch", help="densify or evaluate many captures in parallel (Ray), resumable, with one report",
+        description="Run `densify` (one unit per capture) or `evaluate` (one unit per capture and seed) over "
+                    "the captures of a manifest as Ray tasks: on this machine's cores by default, on a cluster "
+                    "with --address. A unit finished by an earlier run is skipped; a failing capture is "
+                    "reported and the others go on. Needs Ray: pip install 'sparself[ray]' (or use --local).")
+    kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
+    d = kinds.add_parser("densify", help="`sparself densify` on every capture of the manifest",
+                         description="Each capture is densified into OUT/captures/<name>/ as by `sparself densify`.")
+    _batch_options(d)
+    _densify_options(d)
+    _export_options(d)
+    _common(d)
+    d.set_defaults(func=_run_batch)
+    e = kinds.add_parser("evaluate", help="`sparself evaluate` on every capture and seed of the manifest",
+                         description="Each capture x seed k is evaluated into OUT/captures/<name>/seed<k>/ as by "
+                                     "`sparself evaluate --seeds 1 --first-seed k`; OUT/report.md combines them "
+                                     "(mean ± std over seeds and over captures).")
+    _batch_options(e)
+    _eval_options(e)
+    _common(e)
+    e.set_defaults(func=_run_batch)
+
+
+def _run_batch(args) -> int:
+    from .batch import BatchConfig, run_batch
+
+    if args.kind == "densify":
+        base = _densify_config(args)
+    else:
+        from .evaluate import EvalConfig, eval_config
+        from .options import given
+
+        base = eval_config(quick=args.quick, train_cfg=_train_config(args, skip=_EVAL_OWNS), **given(EvalConfig, args))
+    cfg = BatchConfig(address=args.address, local=args.local, workers=args.workers,
+                      cpus_per_task=args.cpus_per_task, gpus_per_task=args.gpus_per_task,
+                      progress=False if args.quiet else None)
+    res = run_batch(args.kind, args.manifest, args.out, base, cfg)
+    done = [u for u in res.units if u.status == "ok"]
+    print(f"batch {args.kind}: {len(done)} of {len(res.units)} unit(s) done "
+          f"({sum(u.skipped for u in done)} by an earlier run), {len(res.failed)} failed -> {args.out / 'report.md'}")
+    for u in res.failed:
+        print(f"  failed: {u.capture} (seed {u.seed}): {u.error}", file=sys.stderr)
+    return 1 if res.failed else 0
+
+
+_COMMANDS.append(_add_batch)
 
 
 if __name__ == "__main__":

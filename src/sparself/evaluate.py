@@ -85,6 +85,8 @@ class EvalConfig:
     n_mid: int = option(8, "planned midpoints used for densification")
     n_extra: int = option(2, "planned extrapolated poses used for densification")
     seeds: int = option(3, "network seeds, reported as mean ± std")
+    first_seed: int = option(0, "the first network seed: seeds are first_seed .. first_seed + seeds - 1 (`sparself "
+                                "batch evaluate` runs one seed per task)")
     reconstructors: tuple[str, ...] = option(("mpi", "nerf"), "reconstructors, comma-separated: mpi,nerf,gsplat",
                                              flag="--recon")
     baselines: tuple[str, ...] = option(("nearest", "blend", "flow", "planesweep"),
@@ -111,6 +113,8 @@ class EvalConfig:
             raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
         if self.seeds < 1:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+        if self.first_seed < 0:
+            raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
 
     @classmethod
     def quick(cls, **kw) -> "EvalConfig":
@@ -422,7 +426,8 @@ def _network_synthesis(ev: _SceneEval, network: Callable[[Scene, int], SynthFn] 
             ev.res["notes"].append(str(e))
             return
     held, mids = SeededSets(), SeededSets()
-    for seed in tqdm(range(ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
+    first = ev.cfg.first_seed
+    for seed in tqdm(range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
         synth = network(ev.inputs, seed)
         imgs = synth(ev.inputs, ev.targets)
         held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
@@ -471,7 +476,7 @@ def _densified_scenes(ev: _SceneEval) -> list[tuple[str, int | None, Scene]]:
     """(key, network seed or None, scene) for every reconstruction: N alone, N + each seed's network
     views, N + each densify-baseline's views, and the oracle."""
     runs: list[tuple[str, int | None, Scene]] = [("base", None, ev.inputs)]
-    for seed, imgs in enumerate(ev.net_planned):
+    for seed, imgs in enumerate(ev.net_planned, start=ev.cfg.first_seed):
         runs.append((NETWORK, seed, _with_images(ev.inputs, ev.planned, imgs)))
     for b in ev.cfg.densify_baselines:
         if b in ev.baseline_planned:
@@ -481,7 +486,8 @@ def _densified_scenes(ev: _SceneEval) -> list[tuple[str, int | None, Scene]]:
     return runs
 
 
-def _oracle_share(entry: dict) -> None:
+def oracle_share(entry: dict) -> None:
+    """Set a densification entry's share of the oracle's PSNR gain (and the gain) from its summaries."""
     if "oracle" in entry and NETWORK in entry:
         b = entry["base"]["summary"]["psnr"]["mean"]
         o = entry["oracle"]["summary"]["psnr"]["mean"]
@@ -507,7 +513,7 @@ def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], ent
             entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append(scored.to_json())
     if net.per_seed:
         entry[NETWORK] = net.to_json()
-    _oracle_share(entry)
+    oracle_share(entry)
     entry["status"] = "ok"
 
 
@@ -654,9 +660,15 @@ def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None
     paths = [Path(p) for p in scene_paths] + (read_manifest(manifest) if manifest else [])
     if not paths:
         raise InputError("no scenes given (pass scene folders or --manifest FILE)")
-    cfg = EvalConfig.quick() if quick else EvalConfig()
-    cfg = replace(cfg, **{k: v for k, v in given.items() if v is not None}, train=train_cfg or cfg.train)
     from .progress import show_progress
 
+    cfg = eval_config(quick=quick, train_cfg=train_cfg, **given)
     cfg = replace(cfg, progress=cfg.progress and show_progress())  # no bar fragments in a log file, none with -q
     return evaluate(paths, out, cfg, overwrite=overwrite)
+
+
+def eval_config(*, quick: bool = False, train_cfg: TrainConfig | None = None, **given) -> EvalConfig:
+    """The command line's EvalConfig: the fields given (None: not given) over the defaults of
+    :class:`EvalConfig` or of :meth:`EvalConfig.quick`; train_cfg: the network's training options."""
+    cfg = EvalConfig.quick() if quick else EvalConfig()
+    return replace(cfg, **{k: v for k, v in given.items() if v is not None}, train=train_cfg or cfg.train)

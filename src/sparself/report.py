@@ -242,7 +242,7 @@ def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
     doc = _Doc(None if c.lp else str(results.get("settings", {}).get("lpips_status") or UNAVAILABLE))
     doc.h(1, "sparself evaluation report")
     for section in (_protocol_section, _not_run_section, _densification_tables, _recon_comparisons,
-                    _view_synthesis_tables, _figures, _examples, _closing_sections):
+                    _view_synthesis_tables, _figures, _examples, _batch_section, _closing_sections):
         section(doc, c)
     md = out_dir / "report.md"
     md.write_text(doc.markdown())
@@ -487,3 +487,65 @@ def conclusions(results: dict) -> list[str]:
 def safe_name(name: str) -> str:
     """A file-name-safe version of a scene or frame name."""
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+
+
+# ---- batches (sparself.batch) ------------------------------------------------------------------------
+
+def _spread(vals: list) -> tuple[float | None, float | None]:
+    v = [x for x in vals if x is not None]
+    return (float(np.mean(v)), float(np.std(v))) if v else (None, None)
+
+
+def _batch_section(doc: _Doc, c: _Ctx) -> None:
+    """A batch's results (``sparself batch evaluate``): sparself per capture (mean ± std over seeds), the
+    mean ± std over captures, and every unit (capture × seed) with its status and one-line error."""
+    if not c.results.get("batch"):
+        return
+    doc.h(2, "Batch: sparself over captures and seeds")
+    for metric, mlabel in METRICS[:2]:
+        rows, cols = [], [[] for _ in range(1 + len(c.recons))]
+        for s in c.ok:
+            cells = [mean_of(s.get("view_synthesis", {}).get(NETWORK), metric)]
+            for r in c.recons:
+                d = s.get("densification", {}).get(r, {})
+                a, (b, sd) = mean_of(d.get("base"), metric)[0], mean_of(d.get(NETWORK), metric)
+                cells.append((None if a is None or b is None else b - a, sd))
+            for col, v in zip(cols, cells):
+                col.append(v[0])
+            rows.append([s["name"], fmt(metric, *cells[0])] + [_change(0.0, v, metric, True) for v, _ in cells[1:]])
+        rows.append([f"mean ± std over {len(c.ok)} capture(s)"] + [fmt(metric, *_spread(col)) for col in cols])
+        doc.p(f"{mlabel} (reconstruction columns: change from N to N + sparself)")
+        doc.table(["Capture", "view synthesis"] + [f"{r} N → N+synth" for r in c.recons], rows)
+    doc.h(3, "Units")
+    doc.table(["Capture", "Seed", "Status", "Seconds", "Error"],
+              [[u["capture"], str(u["seed"]), u["status"] + (" (earlier run)" if u.get("skipped") else ""),
+                f"{u.get('seconds', 0):.1f}", u.get("error") or ""] for u in c.results["batch"].get("units", [])])
+
+
+def write_densify_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
+    """``report.md`` / ``report.html`` of ``sparself batch densify``: one row per capture, the mean ± std
+    over captures, and the captures that failed with their one-line errors."""
+    out_dir = Path(out_dir)
+    scenes = results.get("scenes", [])
+    ok = [s for s in scenes if s.get("status") == "ok"]
+    doc = _Doc()
+    doc.h(1, "sparself batch densify report")
+    doc.p(f"{len(ok)} of {len(scenes)} capture(s) densified; each output folder is what "
+          "`sparself densify CAPTURE --out FOLDER` writes (scene/, plan.json, cameras.png, run/).")
+    rows = [[s["name"], s["status"] + (" (earlier run)" if s.get("skipped") else ""),
+             *(str(s[k]) if s.get(k) is not None else "–" for k in ("views", "synthesized")),
+             f"{s.get('seconds', 0):.1f}", s.get("output", "") if s["status"] == "ok" else ""] for s in scenes]
+    stats = [_spread([s.get(k) for s in ok]) for k in ("views", "synthesized", "seconds")]
+    rows.append([f"mean ± std over {len(ok)} capture(s)", ""] +
+                [f"{m:.1f} ± {sd:.1f}" if m is not None else "–" for m, sd in stats] + [""])
+    doc.table(["Capture", "Status", "Input views", "Synthesized", "Seconds", "Output"], rows)
+    if results.get("failures"):
+        doc.h(2, "Captures that failed")
+        doc.table(["Capture", "Seed", "Error"], [[f["capture"], str(f["seed"]), str(f["error"])]
+                                                 for f in results["failures"]])
+    doc.h(2, "Settings")
+    doc.table(["Package", "Version"], [[k, str(v)] for k, v in results.get("settings", {}).get("versions", {}).items()])
+    md, page = out_dir / "report.md", out_dir / "report.html"
+    md.write_text(doc.markdown())
+    page.write_text(doc.html("sparself batch densify report"))
+    return md, page
