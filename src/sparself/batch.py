@@ -43,6 +43,7 @@ from .io import read_scene
 from .outputs import atomic_file, check_output_dir, remove_stale_temps
 from .pipeline import densify
 from .plan import PlanConfig
+from .progress import show_progress
 from .report import safe_name, write_densify_report, write_report
 from .results import NETWORK, FrameScore, ScoredSet, SeededSets
 from .train import TrainConfig
@@ -332,7 +333,7 @@ class _Progress:
 
     def __init__(self, total: int, enabled: bool | None) -> None:
         self.bar = tqdm(total=total, desc="batch", unit="unit", dynamic_ncols=True,
-                        disable=None if enabled is None else not enabled)
+                        disable=not (show_progress() if enabled is None else enabled))
         self.running = self.failed = 0
 
     def update(self, running: int, result: UnitResult | None = None) -> None:
