@@ -779,6 +779,10 @@ def test_synthesize_output_folder(trained, tmp_path, capsys):
                   case="unwritable output [synthesize]")
     synth_failure(capsys, trained, tmp_path, "/proc", out=Path("/proc/sparself_out"),
                   case="read-only output [synthesize]")
+    # --overwrite replaces only a folder sparself wrote (issue 14)
+    synth_failure(capsys, trained, tmp_path, str(out), "not a folder sparself wrote", out=out, extra=("--overwrite",),
+                  case="--overwrite on a folder sparself did not write [synthesize]")
+    (out / ".sparself-output").write_text("")
     code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite",
                        "-q")
     assert code == 0, err

@@ -50,7 +50,7 @@ from .geometry import rotation_angle_deg
 from .io import read_scene
 from .model import default_weights
 from .options import option
-from .outputs import atomic_dir
+from .outputs import Input, atomic_dir, check_not_input, evaluation_inputs
 from .plan import PlanConfig, plan_poses
 from .plot import plot_cameras
 from .recon import get_reconstructor
@@ -629,7 +629,7 @@ def evaluate(scenes: Sequence[Scene | Path], out: Path, cfg: EvalConfig | None =
     (atomically: nothing is left there if it fails). Returns the results."""
     cfg = cfg or EvalConfig()
     cfg.validate()
-    with atomic_dir(Path(out), overwrite) as tmp:
+    with atomic_dir(Path(out), overwrite, evaluation_inputs(scenes)) as tmp:
         results = run_evaluation(scenes, cfg, tmp, **hooks)
         (tmp / "results.json").write_text(json.dumps(_jsonable(results), indent=1, allow_nan=True))
         write_report(results, tmp)
@@ -657,6 +657,7 @@ def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None
     given: :class:`EvalConfig` fields set on the command line; the others keep the defaults of
     :class:`EvalConfig` (or of :meth:`EvalConfig.quick`). train_cfg: the network's training options.
     """
+    check_not_input(out, [Input("manifest", manifest)])
     paths = [Path(p) for p in scene_paths] + (read_manifest(manifest) if manifest else [])
     if not paths:
         raise InputError("no scenes given (pass scene folders or --manifest FILE)")

@@ -11,7 +11,7 @@ from pathlib import Path
 from . import io as sio
 from .errors import InputError
 from .options import option
-from .outputs import atomic_dir, check_output_dir
+from .outputs import Input, atomic_dir, check_output_dir, scene_inputs
 from .plan import PlanConfig, plan_sequence, save_plan
 from .plot import plot_cameras
 from .scene import Scene, preloaded
@@ -59,8 +59,10 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     """
     cfg = cfg or DensifyConfig()
     out = Path(out)
-    check_output_dir(out, cfg.overwrite)
-    scene = photos_or_scene if isinstance(photos_or_scene, Scene) else read_input(Path(photos_or_scene), cfg)
+    given = isinstance(photos_or_scene, Scene)
+    check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
+    scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg)
+    check_output_dir(out, cfg.overwrite, scene_inputs(scene))  # before any training
     if cfg.out_size:
         scene = preloaded(scene.resized(cfg.out_size))
     scene, targets = plan_sequence(scene, cfg.plan)  # sources on the plan's index scale

@@ -434,11 +434,14 @@ def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: 
     """
     from .errors import OutputError
     from .io import read_scene
+    from .outputs import Input, check_not_input, scene_inputs
 
     out = Path(out)
     if plot is not None and Path(plot).suffix.lower() != ".png":
         raise OutputError(f"{plot}: the camera plot is written as PNG; give a .png file name")
-    for p in [out] + ([Path(plot)] if plot is not None else []):
+    outs = [out] + ([Path(plot)] if plot is not None else [])
+    for k, p in enumerate(outs):
+        check_not_input(p, [Input("scene", scene_path)] + ([Input("plan file (--out)", out)] if k else []))
         if p.exists() and not overwrite:
             raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
         if p.exists() and p.is_dir():
@@ -446,6 +449,8 @@ def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: 
     cfg = cfg or PlanConfig()
     cfg.validate()
     scene = read_scene(Path(scene_path))
+    for p in outs:
+        check_not_input(p, scene_inputs(scene))
     frames = plan_poses(scene, cfg)
     try:
         if plot is None:

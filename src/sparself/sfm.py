@@ -525,13 +525,14 @@ def poses_to_folder(image_folder: Path, out: Path, cfg: SfmConfig | None = None,
     from dataclasses import asdict
 
     from .io import write_scene_into
-    from .outputs import atomic_dir, check_output_dir
+    from .outputs import Input, atomic_dir, check_output_dir
 
     cfg = cfg or SfmConfig()
-    check_output_dir(Path(out), overwrite)
+    inputs = [Input("photo folder", image_folder)]
+    check_output_dir(Path(out), overwrite, inputs)
     scene, report = recover_poses(image_folder, cfg)
     scene.meta.pop("sfm_report", None)
-    with atomic_dir(Path(out), overwrite) as tmp:
+    with atomic_dir(Path(out), overwrite, inputs) as tmp:
         write_scene_into(scene, tmp, images=images)
         (tmp / "sfm_report.json").write_text(json.dumps(
             {"input": str(Path(image_folder).resolve()), **asdict(report), "options": asdict(cfg)}, indent=2))

@@ -19,7 +19,7 @@ from . import io as sio
 from .consistency import recorded_scene, run_scene_mismatch
 from .errors import InputError
 from .model.query import Sources, flow_aligned, novel_queries, render
-from .outputs import check_output_dir
+from .outputs import Input, check_not_input, check_output_dir, scene_folder, scene_inputs
 from .plan import load_plan, order_frames, reindexed
 from .scene import Frame, Scene, one_size
 from .train import Run, amp_dtype, autocast, load_run
@@ -96,9 +96,13 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
     """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene.
     downscaled: also write the ``images_2/4/8`` copies."""
     _check_order(Path(run_path), Path(plan))
-    check_output_dir(Path(out), overwrite)  # refuse a bad --out before loading anything
+    inputs = [Input("run folder", run_path), Input("plan file", plan), Input("scene", scene_path)]
+    check_not_input(Path(out), inputs)
     run = load_run(run_path)
-    scene = sio.read_scene(Path(scene_path) if scene_path else recorded_scene(run.meta, Path(run_path)))
+    src = Path(scene_path) if scene_path else recorded_scene(run.meta, Path(run_path))
+    check_not_input(Path(out), [Input("run's scene", scene_folder(src))])
+    scene = sio.read_scene(src)
+    check_output_dir(Path(out), overwrite, scene_inputs(scene, "run's scene"))  # before any synthesis
     why = run_scene_mismatch(run.meta, scene, run.cfg.holdout)
     if why:
         raise InputError(f"{scene.source}: not the scene the run {run_path} was trained on ({run.meta.scene}): {why}")

@@ -42,7 +42,7 @@ from .geometry import inverse_depth_planes, nearest_point_to_axes
 from .model import CNNLSTM, PoseNorm, build_decoder, load_resnet18_weights
 from .model.decoders import DECODERS, synthesis_loss
 from .model.query import Queries, Sources, flow_aligned, leave_one_out, render
-from .outputs import atomic_file, check_output_dir
+from .outputs import Input, atomic_file, check_not_input, check_output_dir, scene_inputs, write_marker
 from .progress import show_progress
 from .scene import Scene, one_size
 
@@ -557,6 +557,7 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     cfg = cfg or TrainConfig()
     out = Path(out)
     device = resolve_device(cfg.device)
+    check_not_input(out, scene_inputs(scene))
     ck = _resume_checkpoint(out, cfg, resume, overwrite)
     if ck is not None:
         _check_resume_scene(out, RunMeta.from_json(ck["meta"]), scene, cfg)
@@ -573,6 +574,9 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
         start = int(ck["epoch"])
         log.info("resuming %s at epoch %d of %d", out, start, cfg.epochs)
     out.mkdir(parents=True, exist_ok=True)
+    write_marker(out)
+    if ck is None:  # a fresh run over an old one (--overwrite): the old checkpoint must never be resumed
+        (out / CHECKPOINT).unlink(missing_ok=True)
     with atomic_file(out / CONFIG) as tmp:
         tmp.write_text(json.dumps(cfg.to_json(), indent=2))
     _truncate_log(out / LOG, start)
@@ -616,6 +620,7 @@ def _append_log(path: Path, epoch: int, loss: float, seconds: float, cpu_seconds
 def train_scene(scene_path: Path | str, out: Path | str, cfg: TrainConfig | None = None, *,
                 resume: bool = False, overwrite: bool = False) -> Run:
     """`sparself train`: read a scene (anything ``sparself.io.read_scene`` accepts) and train on it."""
+    check_not_input(out, [Input("scene", scene_path)])
     return train(sio.read_scene(Path(scene_path)), out, cfg, resume=resume, overwrite=overwrite)
 
 

@@ -1,0 +1,212 @@
+"""Issue 14, section 1: no command ever writes into or over one of its inputs, and --overwrite replaces
+only a folder sparself wrote (or an empty one).
+
+Every case runs through the CLI with --overwrite (the dangerous flag) and checks: exactly one error line
+naming the output and the input, and the whole surrounding tree byte-identical afterwards (so the inputs
+are untouched and no output or temporary folder was created: the refusal came before any work)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import pytest
+
+from sparself.outputs import MARKER
+from test_bad_input import make_scene, need, one_error, run, write_photos, write_posed
+
+TINY = ["--epochs", "1", "--size", "32", "--crop", "16", "--backbone-size", "32", "--device", "cpu",
+        "--batch-size", "6", "--weights", "none"]
+TINY_DENSIFY = TINY[:1 + 1] + TINY[4:]  # no --size: densify trains at the photos' size
+
+
+def tree(root: Path) -> dict:
+    """Every entry under ``root`` (hidden ones too, symlinks not followed): content hash, link target or 'dir'."""
+    out = {}
+    for d, dirs, files in os.walk(root):
+        for name in dirs + files:
+            p = Path(d) / name
+            rel = str(p.relative_to(root))
+            if p.is_symlink():
+                out[rel] = "-> " + os.readlink(p)
+            elif p.is_file():
+                out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
+            else:
+                out[rel] = "dir"
+    return out
+
+
+def out_for(relation: str, target: Path, root: Path, monkeypatch, file_name: str = "") -> Path:
+    """The --out that stands in ``relation`` to ``target``: the same path, its parent, a child, ``.`` with
+    the working directory there, or a symlink to it."""
+    if relation == "same":
+        return target
+    if relation == "parent":
+        return target.parent
+    if relation == "child":
+        return target / (file_name or "out") if target.is_dir() else target.parent / "out"
+    if relation == "dot":
+        monkeypatch.chdir(target if target.is_dir() else target.parent)
+        return Path(".")
+    if relation == "symlink":
+        link = root / "link"
+        link.symlink_to(target)
+        return link
+    raise KeyError(relation)
+
+
+RELATIONS = ["same", "parent", "child", "dot", "symlink"]
+
+
+def refused(capsys, root: Path, cmd: str, argv: list, *needles: str, case: str = "") -> str:
+    before = tree(root)
+    code, _, err = run(capsys, *argv, "--overwrite", "-q")
+    line = one_error(code, err, cmd, *needles, case=case)
+    assert tree(root) == before, f"{cmd}: the tree changed"
+    assert "sfm:" not in err and "training memory" not in err  # refused before any work
+    return line
+
+
+@pytest.fixture
+def root(tmp_path) -> Path:
+    r = tmp_path / "root"
+    r.mkdir()
+    return r
+
+
+def _how(relation: str) -> str:
+    return {"same": " is the ", "parent": " contains the ", "child": " lies inside the ", "dot": " the ",
+            "symlink": " is the "}[relation]
+
+
+@pytest.mark.parametrize("relation", RELATIONS)
+@pytest.mark.parametrize("cmd", ["poses", "densify"])
+def test_photo_folder_is_never_the_output(root, capsys, monkeypatch, cmd, relation):
+    need(cmd)
+    photos = write_photos(root / "photos", 3)[0].parent
+    out = out_for(relation, photos, root, monkeypatch)
+    extra = ["--link-images"] if cmd == "poses" else TINY_DENSIFY
+    refused(capsys, root, cmd, [cmd, photos, "--out", out, *extra], f"output {out}", _how(relation),
+            "photos", "choose an --out outside", case=f"--out {relation} photo folder [{cmd}]")
+
+
+@pytest.mark.parametrize("relation", RELATIONS)
+@pytest.mark.parametrize("cmd", ["plan", "train", "densify", "evaluate"])
+def test_scene_folder_is_never_the_output(root, capsys, monkeypatch, cmd, relation):
+    need(cmd)
+    scene = write_posed(root / "scene", make_scene(6), "llff")
+    out = out_for(relation, scene, root, monkeypatch, "plan.json" if cmd == "plan" else "out")
+    extra = {"plan": [], "train": TINY, "densify": TINY_DENSIFY, "evaluate": ["--quick", "--recon", "mpi"]}[cmd]
+    refused(capsys, root, cmd, [cmd, scene, "--out", out, *extra], f"output {out}", _how(relation), "scene",
+            case=f"--out {relation} scene folder [{cmd}]")
+
+
+@pytest.mark.parametrize("relation", ["same", "parent"])
+def test_pose_file_is_never_the_output(root, capsys, monkeypatch, relation):
+    """A scene given by its pose file: the file and the folder holding it (with the images) are inputs."""
+    need("train")
+    npy = write_posed(root / "scene", make_scene(6), "llff") / "poses_bounds.npy"
+    out = out_for(relation, npy, root, monkeypatch)
+    refused(capsys, root, "train", ["train", npy, "--out", out, *TINY], f"output {out}", "poses_bounds.npy",
+            case=f"--out {relation} pose file [train]")
+
+
+def test_plot_and_plan_file_are_different_outputs(root, capsys):
+    scene = write_posed(root / "scene", make_scene(6), "llff")
+    refused(capsys, root, "plan", ["plan", scene, "--out", root / "p.png", "--plot", root / "p.png"],
+            "p.png", "is the plan file (--out)", case="--plot same as --out [plan]")
+
+
+def test_manifest_is_never_the_output(root, capsys):
+    need("evaluate")
+    scene = write_posed(root / "scene", make_scene(6), "llff")
+    (root / "lists").mkdir()
+    (root / "lists" / "scenes.txt").write_text(f"{scene}\n")
+    refused(capsys, root, "evaluate", ["evaluate", "--manifest", root / "lists" / "scenes.txt", "--out",
+                                       root / "lists", "--quick"], "contains the manifest", case="--out holds the manifest [evaluate]")
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> dict:
+    """One tiny run (1 epoch on a 6-view 32x24 scene) and a plan, made once for the synthesize cases."""
+    need("train", "synthesize")
+    import contextlib
+    import io
+
+    from sparself.cli import main
+
+    base = tmp_path_factory.mktemp("synth")
+    scene = write_posed(base / "data" / "scene", make_scene(6), "llff")  # each in a folder of its own, so
+    run_dir, plan = base / "runs" / "run", base / "plans" / "plan.json"     # that the parent holds one input
+    plan.parent.mkdir()
+    with contextlib.redirect_stderr(io.StringIO()) as err:
+        assert main([str(a) for a in ["train", scene, "--out", run_dir, *TINY, "-q"]]) == 0, err.getvalue()
+        assert main([str(a) for a in ["plan", scene, "--out", plan, "--n-mid", "2", "--n-extra", "0",
+                                      "-q"]]) == 0, err.getvalue()
+    assert (run_dir / MARKER).is_file()  # a run is a folder sparself wrote
+    return {"root": base, "scene": scene, "run": run_dir, "plan": plan}
+
+
+@pytest.mark.parametrize("what, relation", [(w, r) for w in ("run", "scene") for r in RELATIONS]
+                         + [("plan", "same"), ("plan", "parent")])
+def test_synthesize_never_writes_over_its_run_plan_or_scene(trained, capsys, monkeypatch, what, relation):
+    """The run folder, the plan file and the run's source scene (found through the run, not given)."""
+    root = trained["root"]
+    link = root / "link"
+    try:
+        out = out_for(relation, trained[what], root, monkeypatch)
+        name = {"run": "run", "scene": "scene", "plan": "plan.json"}[what]
+        refused(capsys, root, "synthesize", ["synthesize", trained["run"], "--plan", trained["plan"], "--out", out],
+                f"output {out}", name, case=f"--out {relation} {what} [synthesize]")
+    finally:
+        link.unlink(missing_ok=True)
+
+
+@pytest.mark.parametrize("cmd", ["poses", "train", "densify", "evaluate"])
+def test_overwrite_replaces_only_what_sparself_wrote(root, capsys, cmd):
+    """A non-empty folder without sparself's marker is never replaced, even with --overwrite."""
+    need(cmd)
+    inp = write_photos(root / "photos", 3)[0].parent if cmd in ("poses", "densify") else \
+        write_posed(root / "scene", make_scene(6), "llff")
+    mine = root / "my_things"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("the only copy")
+    extra = {"poses": [], "train": TINY, "densify": TINY_DENSIFY, "evaluate": ["--quick", "--recon", "mpi"]}[cmd]
+    refused(capsys, root, cmd, [cmd, inp, "--out", mine, *extra], str(mine), "not a folder sparself wrote",
+            "delete it yourself", case=f"--overwrite on a folder sparself did not write [{cmd}]")
+
+
+def test_overwrite_replaces_a_folder_sparself_wrote_or_an_empty_one(root, capsys):
+    scene = write_posed(root / "scene", make_scene(6), "llff")
+    (root / "out").mkdir()
+    for _ in range(2):  # an empty folder, then the run just written there (it holds the marker)
+        code, _, err = run(capsys, "train", scene, "--out", root / "out", *TINY, "--overwrite", "-q")
+        assert code == 0, err
+        assert (root / "out" / MARKER).is_file() and (root / "out" / "checkpoint.pt").is_file()
+    assert sorted(p.name for p in root.iterdir()) == ["out", "scene"]
+
+
+def test_synthesize_into_a_mount_point(trained, tmp_path, capsys, monkeypatch):
+    """A mount point as --out (simulated: os.path.ismount says so and renaming it fails with EBUSY): the
+    dense scene is written inside it, entry by entry, with no traceback and nothing left beside it."""
+    import errno
+
+    from sparself.io import read_scene
+
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    real_ismount, real_rename = os.path.ismount, os.rename
+
+    def rename(src, dst):
+        if mnt in (Path(src), Path(dst)):
+            raise OSError(errno.EBUSY, os.strerror(errno.EBUSY))
+        return real_rename(src, dst)
+
+    monkeypatch.setattr(os.path, "ismount", lambda p: Path(p) == mnt or real_ismount(p))
+    monkeypatch.setattr(os, "rename", rename)
+    code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", mnt, "-q")
+    assert code == 0 and "Traceback" not in err, err
+    assert len(read_scene(mnt)) == 6 + 2 and (mnt / MARKER).is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mnt"]
+    assert not [p for p in mnt.iterdir() if ".tmp-" in p.name]
