@@ -7,8 +7,11 @@ To add a command: write ``_add_<name>(sub)`` that builds its parser and sets ``f
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -90,6 +93,33 @@ class _Repeats(logging.Filter):
         return out
 
 
+_STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+_stopped_by: list[int] = []  # the signal that stopped the running command
+
+
+def _stop(signum, frame) -> None:
+    for s in _STOP_SIGNALS:  # a second signal must not interrupt the cleanup of the first
+        signal.signal(s, signal.SIG_IGN)
+    _stopped_by.append(signum)
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _signals_interrupt():
+    """While a command runs, SIGTERM (kill, timeout, container stop) and SIGHUP (closed terminal) behave
+    like Ctrl-C: temporary output removed, checkpoint kept. Restored afterwards (main() runs in tests)."""
+    _stopped_by.clear()
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, _stop) for s in _STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -109,15 +139,18 @@ def main(argv: list[str] | None = None) -> int:
     pkg.setLevel(level)
     pkg.propagate = False
     try:
-        return int(args.func(args) or 0)
+        with _signals_interrupt():
+            return int(args.func(args) or 0)
     except SparselfError as e:
         if args.debug:
             raise
         print(f"sparself {args.command}: error: {e}", file=sys.stderr)
         return e.exit_code
-    except KeyboardInterrupt as e:
-        print(f"sparself {args.command}: interrupted" + (f"; {e}" if str(e) else ""), file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM or SIGHUP: exit status 128 + the signal
+        signum = _stopped_by[-1] if _stopped_by else signal.SIGINT
+        by = f" by {signal.Signals(signum).name}" if signum != signal.SIGINT else ""
+        print(f"sparself {args.command}: interrupted{by}" + (f"; {e}" if str(e) else ""), file=sys.stderr)
+        return 128 + int(signum)
     finally:
         for rec in repeats.rest():
             handler.handle(rec)

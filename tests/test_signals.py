@@ -1,0 +1,73 @@
+"""Issue 14, section 4: SIGTERM (kill, timeout, container stop) and SIGHUP (closed terminal) behave like
+Ctrl-C: temporary output removed, checkpoint kept, exit 128 + signal, one line saying how to go on."""
+
+from __future__ import annotations
+
+import shlex
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from test_bad_input import listing, make_scene, need, write_posed
+from test_robustness import ENV, TRAIN, cli
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    return write_posed(tmp_path_factory.mktemp("sig") / "scene", make_scene(6), "llff")
+
+
+def _wait_for(proc, cond, what: str) -> None:
+    t0 = time.monotonic()
+    while proc.poll() is None and time.monotonic() - t0 < 90 and not cond():
+        time.sleep(0.01)
+    assert proc.poll() is None, f"ended before {what}: {proc.communicate()[1]}"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_signal_during_densify_leaves_nothing(scene, tmp_path, sig):
+    need("densify")
+    res = tmp_path / "res"
+    res.mkdir()
+    proc = subprocess.Popen(cli("densify", scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2",
+                                "--n-extra", "1", *TRAIN), env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    _wait_for(proc, lambda: list(res.glob(".out.tmp-*/run/train_log.csv")), "training started")
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    name = signal.Signals(sig).name
+    assert proc.returncode == 128 + sig, err
+    lines = [ln for ln in err.splitlines() if "interrupted" in ln]
+    assert lines == [f"sparself densify: interrupted by {name}; nothing was written (the partial output was "
+                     "removed): run the same command again"], err
+    assert "Traceback" not in err
+    assert listing(res) == []  # no output, no hidden temporary folder
+
+
+def test_sigterm_during_training_keeps_the_checkpoint_and_says_how_to_resume(scene, tmp_path):
+    need("train")
+    import torch
+
+    run = tmp_path / "run"
+    argv = ["train", str(scene), "--out", str(run), "--epochs", "500", *TRAIN]
+    proc = subprocess.Popen(cli(*argv), env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for(proc, lambda: (run / "checkpoint.pt").exists(), "the first checkpoint")
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and "Traceback" not in err, err
+    epoch = torch.load(run / "checkpoint.pt", weights_only=False)["epoch"]
+    assert epoch >= 5
+    hint = f"sparself train: interrupted by SIGTERM; the checkpoint at epoch {epoch} is kept in {run}: continue with "
+    lines = [ln for ln in err.splitlines() if "interrupted" in ln]
+    assert len(lines) == 1 and lines[0].startswith(hint), err
+    resume = shlex.split(lines[0][len(hint):].strip("`"))
+    assert resume == ["sparself", *argv, "--resume"]
+    assert not [p for p in [*tmp_path.iterdir(), *run.iterdir()] if ".tmp-" in p.name]  # no temporary file left
+    # the printed command continues the run (here to a nearer end, to keep the test short)
+    resume[resume.index("500")] = str(epoch + 1)
+    done = subprocess.run(cli(*resume[1:], "-q"), env=ENV, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert torch.load(run / "checkpoint.pt", weights_only=False)["epoch"] == epoch + 1
