@@ -97,7 +97,8 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
     # --resume starts again and ends the same
     early = tmp_path / "early"
     early.mkdir()
-    (early / "config.json").write_bytes((full / "config.json").read_bytes())
+    for name in ("config.json", ".sparself-output"):
+        (early / name).write_bytes((full / name).read_bytes())
     (early / "train_log.csv").write_text("\n".join((full / "train_log.csv").read_text().splitlines()[:3]) + "\n")
     again = subprocess.run(cli("train", scene, "--out", early, "--epochs", "9", *TRAIN, "--resume", "-q"), env=ENV,
                            capture_output=True, text=True, timeout=120)
