@@ -45,7 +45,8 @@ from .errors import ConfigError, InputError
 from .geometry import Pose, interpolate_pose
 from .options import option
 from .outputs import atomic_file
-from .scene import Frame, Scene
+from .names import check_names
+from .scene import IMAGE_EXTENSIONS, Frame, Scene
 
 log = logging.getLogger(__name__)
 
@@ -416,8 +417,10 @@ def load_plan(path: Path, scene: Scene, *, check_source: bool = True) -> list[Fr
         if cam not in scene.cameras:
             raise InputError(f"{path}: frame {i}: camera {cam} is not a camera of the scene "
                              f"(has {sorted(scene.cameras)})")
-        name = str(rec.get("name") or novel_name(index))
+        name = rec.get("name") or novel_name(index)
         frames.append(Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True))
+    # planned names become files beside the scene's own images: checked before anything is written
+    check_names([f.name for f in frames], path, what="frame name", extensions=IMAGE_EXTENSIONS)
     if check_source:
         _check_indices(path, frames, scene)
     return frames

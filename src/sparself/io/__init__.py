@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Sequence
 
 from ..errors import InputError
-from ..outputs import atomic_dir
+from ..names import check_names
+from ..outputs import atomic_dir, write_marker
 from ..scene import Frame, Scene, image_size_of, needs_conversion, save_image
 from . import dense as _dense
 from .colmap import find_model_dir, read_colmap, write_colmap
@@ -141,10 +142,7 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
         raise InputError(f"unknown output format(s) {sorted(unknown)}; choose from {FORMATS + ('middlebury',)}")
     if images not in ("copy", "link", "none"):
         raise ValueError(f"images must be 'copy', 'link' or 'none', got {images!r}")
-    names = [f.name for f in scene.frames]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise InputError(f"frame names must be unique; repeated: {', '.join(dup)}")
+    check_names([f.name for f in scene.frames], scene.source or "scene", what="frame name", subfolders=True)
     split, sources, dense = None, [], dense or DenseInfo()
     if any(f.synthetic for f in scene.frames):
         scene, split, sources = _dense.layout(scene, dense)
@@ -155,6 +153,7 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
             _write_image(f, scene, i, dst, link=images == "link")
         new_frames.append(replace(f, path=dst if images != "none" else f.path, image=None if images != "none"
                                   else f.image))
+    write_marker(folder)
     written = replace(scene, frames=new_frames, source=folder, meta=dict(scene.meta))
     _write_formats(written, folder, formats, text, split)
     if split is not None:

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import Pose
+from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of
 from ._common import check_finite, find_image, scene_cameras_dedup
 
@@ -182,6 +183,7 @@ def scene_from_reconstruction(rec, image_dir: Path | None, *, source: Path | Non
             cams[int(cid)] = Camera(model, int(c.width), int(c.height), tuple(params))
         except ValueError as e:
             raise InputError(f"{where}: camera {cid}: {e}") from None
+    check_names([im.name for im in rec.images.values()], where, subfolders=True)  # before any file is touched
     frames, unregistered = [], []
     for img in sorted(rec.images.values(), key=lambda im: im.name):
         if not img.has_pose:

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import Pose
+from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of, list_images
 from ._common import check_finite, frame_name_order, unique_cameras
 
@@ -99,6 +100,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     arr = _load_array(npy)
     image_dir = Path(images) if images is not None else npy.parent / "images"
     files = list_images(image_dir)
+    check_names([p.name for p in files], image_dir)
     if len(files) != len(arr):
         raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
     frames, cams, frame_bounds, scaled = [], [], {}, {}

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import Pose, rotmat_to_quat
+from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of
 from ._common import check_finite, order_frames, unique_cameras
 
@@ -66,6 +67,7 @@ def read_middlebury(path: Path) -> Scene:
         frames.append(Frame(name=row[0], pose=Pose(rotmat_to_quat(R), t), path=img))
     if not frames:
         raise InputError(f"{par}: none of the {n} listed images exists in {folder}")
+    check_names([f.name for f in frames], par)
     if len(frames) < n:
         log.info("%s: %d of %d listed views have no image file; skipped", par.name, n - len(frames), n)
     cameras, ids = unique_cameras(cams)

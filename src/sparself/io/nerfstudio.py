@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import Pose
+from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of
 from ._common import check_finite, frame_name_order, order_frames, unique_cameras
 
@@ -120,6 +121,7 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
         cams.append(_camera({**glob_keys, **fr}, img_path, where))
         name = Path(str(fr["file_path"])).name if img_path is None else img_path.name
         frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path, synthetic=fr.get("synthetic") is True))
+    check_names([f.name for f in frames], js)
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
