@@ -6,6 +6,7 @@ folding: they are one file on macOS and Windows)."""
 
 from __future__ import annotations
 
+import os
 import unicodedata
 from typing import Iterable
 
@@ -49,7 +50,7 @@ def check_names(names: Iterable[object], where: object, *, what: str = "image na
     seen: dict[str, str] = {}
     for name in names:
         problem = name_problem(name, subfolders=subfolders)
-        if problem is None and exts is not None and not str(name).lower().endswith(exts):
+        if problem is None and exts is not None and os.path.splitext(name)[1].lower() not in exts:
             problem = f"does not end with an image extension ({', '.join(exts)})"
         if problem:
             raise InputError(f"{where}: {what} {name!r} {problem}")

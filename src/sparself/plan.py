@@ -137,6 +137,9 @@ def nearest_neighbour_order(scene: Scene) -> np.ndarray:
         length = path_length(scene, o)
         if length < best_len - 1e-12:
             best, best_len = o, length
+    if best is None:  # every length is inf or NaN
+        raise InputError(f"{scene.source or 'scene'}: camera positions too far apart to plan a path "
+                         "(distances overflow); check the pose file's translations")
     # Present the path in the direction that agrees with capture order where it can (stable output).
     if best[0] > best[-1]:
         best = best[::-1].copy()
@@ -402,7 +405,11 @@ def load_plan(path: Path, scene: Scene, *, check_source: bool = True) -> list[Fr
         t = _vector(path, i, rec, "tvec", 3)
         if np.linalg.norm(q) < 1e-9:
             raise InputError(f"{path}: frame {i}: qvec is zero")
-        pose = Pose(q, t)
+        try:
+            pose = Pose(q, t)
+            pose.R  # normalises qvec: fails when its norm overflows
+        except ValueError:
+            raise InputError(f"{path}: frame {i}: qvec is not a usable rotation") from None
         if "c2w" in rec:
             c2w = _vector(path, i, rec, "c2w", 12).reshape(3, 4)
             if np.abs(c2w - pose.c2w()[:3]).max() > 1e-6:

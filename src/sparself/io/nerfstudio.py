@@ -100,7 +100,7 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
             raise InputError(f"{where}: needs 'file_path' and 'transform_matrix'")
         try:
             M = np.asarray(fr["transform_matrix"], dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError(f"{where}: transform_matrix is not a numeric matrix") from None
         if M.shape not in ((4, 4), (3, 4)):
             raise InputError(f"{where}: transform_matrix must be 4x4 (or 3x4), got shape {M.shape}")
@@ -118,7 +118,10 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
             img_path = None
         else:
             img_path = img
-        cams.append(_camera({**glob_keys, **fr}, img_path, where))
+        try:
+            cams.append(_camera({**glob_keys, **fr}, img_path, where))
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{where}: intrinsics (w, h, fl_x, fl_y, cx, cy, k1...) must be numbers") from None
         name = Path(str(fr["file_path"])).name if img_path is None else img_path.name
         frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path, synthetic=fr.get("synthetic") is True))
     check_names([f.name for f in frames], js)
