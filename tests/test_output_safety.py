@@ -210,3 +210,19 @@ def test_synthesize_into_a_mount_point(trained, tmp_path, capsys, monkeypatch):
     assert len(read_scene(mnt)) == 6 + 2 and (mnt / MARKER).is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mnt"]
     assert not [p for p in mnt.iterdir() if ".tmp-" in p.name]
+
+
+def test_overwrite_that_cannot_delete_the_old_output_fails_up_front(trained, tmp_path, capsys, monkeypatch):
+    """--overwrite of a dense scene sparself wrote, but whose images/ the user may not change (simulated:
+    os.access says no, as it does for a read-only folder of another user): one line, before any work."""
+    out = tmp_path / "dense"
+    code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "-q")
+    assert code == 0, err
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: Path(p) != out / "images" and real_access(p, mode, **kw))
+    before = tree(tmp_path)
+    code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite",
+                       "-q")
+    one_error(code, err, "synthesize", str(out), "--overwrite cannot delete it", f"{out / 'images'}",
+              case="--overwrite on a folder that cannot be deleted [synthesize]")
+    assert tree(tmp_path) == before
