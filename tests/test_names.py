@@ -41,7 +41,9 @@ def test_collisions_after_case_folding():
     with pytest.raises(InputError, match=r"f: image name 'a.png' appears twice"):
         check_names(["a.png", "a.png"], "f")
     with pytest.raises(InputError, match="does not end with an image extension"):
-        check_names(["a.txt"], "f", extensions=(".png",))
+        check_names([".png"], "f", extensions=(".png",))
+    with pytest.raises(InputError, match=r"f: frame name 'novel.png' is the name of a view of the scene \('Novel.png'\)"):
+        check_names(["a.png", "novel.png"], "f", what="frame name", taken=["Novel.png"])
 
 
 # ---- through the CLI ----------------------------------------------------------------------------------------
@@ -63,7 +65,7 @@ def _synth(capsys, trained, plan: Path, out: Path, *extra) -> tuple[int, str]:
     ("/tmp/sparself_escaped.png", ("is an absolute path",)),
     ("sub/x.png", ("contains a path separator '/'",)),
     ("UPPER", ("differ only in case",)),  # frame 0's name in capitals
-    ("00.png", ("frame name '00.png' appears twice",)),  # the name of a view of the scene
+    ("00.PNG", ("frame name '00.PNG' is the name of a view of the scene ('00.png')",)),
     ("notes.txt", ("does not end with an image extension",)),
 ])
 def test_plan_frame_names_are_checked_before_anything_is_written(trained, tmp_path, capsys, name, needles):

@@ -42,11 +42,14 @@ def name_problem(name: object, *, subfolders: bool = False) -> str | None:
 
 
 def check_names(names: Iterable[object], where: object, *, what: str = "image name",
-                subfolders: bool = False, extensions: Iterable[str] | None = None) -> None:
+                subfolders: bool = False, extensions: Iterable[str] | None = None,
+                taken: Iterable[str] = ()) -> None:
     """Raise InputError naming ``where`` and the first bad or colliding name.
 
-    extensions: when given, each name must end with one of them (case-insensitive)."""
+    extensions: when given, each name must end with one of them (case-insensitive).
+    taken: names of the scene's own views, which ``names`` must not collide with."""
     exts = tuple(e.lower() for e in extensions) if extensions is not None else None
+    views = {unicodedata.normalize("NFC", t).casefold(): t for t in taken}
     seen: dict[str, str] = {}
     for name in names:
         problem = name_problem(name, subfolders=subfolders)
@@ -55,6 +58,9 @@ def check_names(names: Iterable[object], where: object, *, what: str = "image na
         if problem:
             raise InputError(f"{where}: {what} {name!r} {problem}")
         key = unicodedata.normalize("NFC", name).casefold()
+        if key in views:
+            raise InputError(f"{where}: {what} {name!r} is the name of a view of the scene ({views[key]!r}); "
+                             "each view needs its own file name")
         if key in seen:
             twice = "appears twice" if seen[key] == name else \
                 f"and {seen[key]!r} differ only in case (one file on macOS and Windows)"

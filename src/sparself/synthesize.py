@@ -19,6 +19,7 @@ from . import io as sio
 from .consistency import recorded_scene, run_scene_mismatch
 from .errors import InputError
 from .model.query import Sources, flow_aligned, novel_queries, render
+from .names import check_names
 from .outputs import Input, check_not_input, check_output_dir, scene_folder, scene_inputs
 from .plan import load_plan, order_frames, reindexed
 from .scene import Frame, Scene, one_size
@@ -109,6 +110,7 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
     targets = load_plan(Path(plan), scene)  # validates the file, and that it was made for this scene
     hold = set(run.cfg.holdout)
     scene = scene.subset([i for i in range(len(scene)) if i not in hold])
+    check_names([t.name for t in targets], plan, what="frame name", taken=[f.name for f in scene.frames])
     order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))
