@@ -115,7 +115,7 @@ def test_pose_file_is_never_the_output(root, capsys, monkeypatch, relation):
 def test_plot_and_plan_file_are_different_outputs(root, capsys):
     scene = write_posed(root / "scene", make_scene(6), "llff")
     refused(capsys, root, "plan", ["plan", scene, "--out", root / "p.png", "--plot", root / "p.png"],
-            "p.png", "is the plan file (--out)", case="--plot same as --out [plan]")
+            "--plot", "--out", "p.png", "are the same file", case="--plot same as --out [plan]")
 
 
 def test_manifest_is_never_the_output(root, capsys):

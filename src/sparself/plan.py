@@ -444,14 +444,16 @@ def make_plan(scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: 
     """
     from .errors import OutputError
     from .io import read_scene
-    from .outputs import Input, check_not_input, scene_inputs
+    from .outputs import Input, check_not_input, real, scene_inputs
 
     out = Path(out)
     if plot is not None and Path(plot).suffix.lower() != ".png":
         raise OutputError(f"{plot}: the camera plot is written as PNG; give a .png file name")
+    if plot is not None and real(plot) == real(out):
+        raise OutputError(f"--plot {plot} and --out {out} are the same file; give each its own name")
     outs = [out] + ([Path(plot)] if plot is not None else [])
-    for k, p in enumerate(outs):
-        check_not_input(p, [Input("scene", scene_path)] + ([Input("plan file (--out)", out)] if k else []))
+    for p in outs:
+        check_not_input(p, [Input("scene", scene_path)])
         if p.exists() and not overwrite:
             raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
         if p.exists() and p.is_dir():
