@@ -73,7 +73,8 @@ def call(sb: dict, argv: list, out: Path, what: str) -> int:
     if out.exists():
         shutil.rmtree(out) if out.is_dir() else out.unlink()
     after = snapshot(sb["root"])
-    assert after == before, f"{what}: changed outside --out: " + str(sorted(set(after.items()) ^ set(before.items()))[:4])
+    changed = sorted(set(after.items()) ^ set(before.items()))[:4]
+    assert after == before, f"{what}: changed outside --out: {changed}"
     return code
 
 

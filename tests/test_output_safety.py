@@ -124,7 +124,8 @@ def test_manifest_is_never_the_output(root, capsys):
     (root / "lists").mkdir()
     (root / "lists" / "scenes.txt").write_text(f"{scene}\n")
     refused(capsys, root, "evaluate", ["evaluate", "--manifest", root / "lists" / "scenes.txt", "--out",
-                                       root / "lists", "--quick"], "contains the manifest", case="--out holds the manifest [evaluate]")
+                                       root / "lists", "--quick"], "contains the manifest",
+            case="--out holds the manifest [evaluate]")
 
 
 @pytest.fixture(scope="module")

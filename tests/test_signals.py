@@ -71,3 +71,23 @@ def test_sigterm_during_training_keeps_the_checkpoint_and_says_how_to_resume(sce
     done = subprocess.run(cli(*resume[1:], "-q"), env=ENV, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert torch.load(run / "checkpoint.pt", weights_only=False)["epoch"] == epoch + 1
+
+
+def test_interrupt_before_the_first_checkpoint_says_resume_starts_again(tmp_path):
+    """The run folder holds config.json but no checkpoint yet: `--resume` starts it again (test_robustness
+    shows that it does); an interrupt before the run folder exists says to run the command again."""
+    import argparse
+
+    from sparself.cli import _after_interrupt, _Terminated
+
+    run = tmp_path / "run"
+    argv = ["train", "scene", "--out", str(run), "--epochs", "9"]
+    args = argparse.Namespace(command="train", out=run)
+    line, code = _after_interrupt(args, argv, KeyboardInterrupt())
+    assert code == 130 and line == ("sparself train: interrupted by SIGINT; nothing was written (the partial output "
+                                    "was removed): run the same command again")
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    line, code = _after_interrupt(args, argv, _Terminated(signal.SIGHUP))
+    assert code == 129 and line == (f"sparself train: interrupted by SIGHUP; no checkpoint was written yet: "
+                                    f"`sparself train scene --out {run} --epochs 9 --resume` starts the run again")
