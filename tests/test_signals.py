@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from test_bad_input import listing, make_scene, need, write_posed
-from test_robustness import ENV, TRAIN, cli
+from test_robustness import DENSIFY, ENV, TRAIN, cli
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def test_signal_during_densify_leaves_nothing(scene, tmp_path, sig):
     res = tmp_path / "res"
     res.mkdir()
     proc = subprocess.Popen(cli("densify", scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2",
-                                "--n-extra", "1", *TRAIN), env=ENV, stdout=subprocess.PIPE,
+                                "--n-extra", "1", *DENSIFY), env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     _wait_for(proc, lambda: list(res.glob(".out.tmp-*/run/train_log.csv")), "training started")
     proc.send_signal(sig)
