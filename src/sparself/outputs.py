@@ -81,9 +81,9 @@ def scene_inputs(scene, what: str = "scene") -> list[Input]:
     return found + [Input(f"{what}'s image folder", d) for d in sorted(folders)]
 
 
-def evaluation_inputs(scenes: Iterable, manifest: Path | str | None = None) -> list[Input]:
-    """The inputs of an evaluation: each scene (a path, or a Scene's folders) and the manifest."""
-    found = [Input("manifest", manifest)]
+def evaluation_inputs(scenes: Iterable) -> list[Input]:
+    """The inputs of an evaluation: each scene (a path, or a Scene's folders)."""
+    found = []
     for s in scenes:
         found += scene_inputs(s) if hasattr(s, "frames") else [Input("scene", s)]
     return found

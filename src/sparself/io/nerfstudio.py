@@ -32,6 +32,13 @@ _DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 def _camera(d: dict, img: Path | None, where: str) -> Camera:
     """Camera from a dict of nerfstudio intrinsics keys (the global ones updated by the frame's)."""
+    try:
+        return _read_camera(d, img, where)
+    except (TypeError, ValueError, OverflowError):  # a list, null or huge integer where a number belongs
+        raise InputError(f"{where}: intrinsics (w, h, fl_x, fl_y, cx, cy, k1...) must be numbers") from None
+
+
+def _read_camera(d: dict, img: Path | None, where: str) -> Camera:
     if "w" in d and "h" in d:
         w, h = int(d["w"]), int(d["h"])
     elif img is not None:
@@ -118,10 +125,7 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
             img_path = None
         else:
             img_path = img
-        try:
-            cams.append(_camera({**glob_keys, **fr}, img_path, where))
-        except (TypeError, ValueError, OverflowError):
-            raise InputError(f"{where}: intrinsics (w, h, fl_x, fl_y, cx, cy, k1...) must be numbers") from None
+        cams.append(_camera({**glob_keys, **fr}, img_path, where))
         name = Path(str(fr["file_path"])).name if img_path is None else img_path.name
         frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path, synthetic=fr.get("synthetic") is True))
     check_names([f.name for f in frames], js)
