@@ -227,3 +227,25 @@ def test_overwrite_that_cannot_delete_the_old_output_fails_up_front(trained, tmp
     one_error(code, err, "synthesize", str(out), "--overwrite cannot delete it", f"{out / 'images'}",
               case="--overwrite on a folder that cannot be deleted [synthesize]")
     assert tree(tmp_path) == before
+
+
+def test_train_overwrite_drops_the_old_checkpoint(trained, tmp_path, capsys, monkeypatch):
+    """train --overwrite over a run, interrupted before its first checkpoint: the old run's checkpoint is
+    gone (a later --resume must not continue it under the new config) and the line says --resume restarts."""
+    import shutil
+
+    import sparself.train
+
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained["run"], run_dir)
+    assert (run_dir / "checkpoint.pt").is_file()
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sparself.train, "_fit", interrupted)
+    argv = ["train", str(trained["scene"]), "--out", str(run_dir), *TINY, "--decoder", "fc", "--overwrite"]
+    code, _, err = run(capsys, *argv)
+    assert code == 130 and not (run_dir / "checkpoint.pt").exists(), err
+    assert f"sparself train: interrupted by SIGINT; no checkpoint was written yet: `sparself {' '.join(argv)} " \
+           "--resume` starts the run again" in err
