@@ -231,7 +231,7 @@ def test_overwrite_that_cannot_delete_the_old_output_fails_up_front(trained, tmp
 
 def test_train_overwrite_drops_the_old_checkpoint(trained, tmp_path, capsys, monkeypatch):
     """train --overwrite over a run, interrupted before its first checkpoint: the old run's checkpoint is
-    gone (a later --resume must not continue it under the new config) and the line says --resume restarts."""
+    gone (a later --resume must not continue it under the new config)."""
     import shutil
 
     import sparself.train
@@ -247,5 +247,6 @@ def test_train_overwrite_drops_the_old_checkpoint(trained, tmp_path, capsys, mon
     argv = ["train", str(trained["scene"]), "--out", str(run_dir), *TINY, "--decoder", "fc", "--overwrite"]
     code, _, err = run(capsys, *argv)
     assert code == 130 and not (run_dir / "checkpoint.pt").exists(), err
-    assert f"sparself train: interrupted by SIGINT; no checkpoint was written yet: `sparself {' '.join(argv)} " \
-           "--resume` starts the run again" in err
+    again = " ".join(a for a in argv if a != "--overwrite")
+    assert f"sparself train: interrupted; stopped before the first checkpoint; start again with: sparself {again} " \
+           "--resume" in err, err

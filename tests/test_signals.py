@@ -41,8 +41,8 @@ def test_signal_during_densify_leaves_nothing(scene, tmp_path, sig):
     name = signal.Signals(sig).name
     assert proc.returncode == 128 + sig, err
     lines = [ln for ln in err.splitlines() if "interrupted" in ln]
-    assert lines == [f"sparself densify: interrupted by {name}; nothing was written (the partial output was "
-                     "removed): run the same command again"], err
+    assert lines == [f"sparself densify: interrupted by {name}; nothing was written to {res / 'out'}; "
+                     "run the command again"], err
     assert "Traceback" not in err
     assert listing(res) == []  # no output, no hidden temporary folder
 
@@ -60,10 +60,11 @@ def test_sigterm_during_training_keeps_the_checkpoint_and_says_how_to_resume(sce
     assert proc.returncode == 143 and "Traceback" not in err, err
     epoch = torch.load(run / "checkpoint.pt", weights_only=False)["epoch"]
     assert epoch >= 5
-    hint = f"sparself train: interrupted by SIGTERM; the checkpoint at epoch {epoch} is kept in {run}: continue with "
+    hint = (f"sparself train: interrupted by SIGTERM; the checkpoint at epoch {epoch} is kept in "
+            f"{run / 'checkpoint.pt'}; continue with: ")
     lines = [ln for ln in err.splitlines() if "interrupted" in ln]
     assert len(lines) == 1 and lines[0].startswith(hint), err
-    resume = shlex.split(lines[0][len(hint):].strip("`"))
+    resume = shlex.split(lines[0][len(hint):])
     assert resume == ["sparself", *argv, "--resume"]
     assert not [p for p in [*tmp_path.iterdir(), *run.iterdir()] if ".tmp-" in p.name]  # no temporary file left
     # the printed command continues the run (here to a nearer end, to keep the test short)
@@ -73,21 +74,11 @@ def test_sigterm_during_training_keeps_the_checkpoint_and_says_how_to_resume(sce
     assert torch.load(run / "checkpoint.pt", weights_only=False)["epoch"] == epoch + 1
 
 
-def test_interrupt_before_the_first_checkpoint_says_resume_starts_again(tmp_path):
-    """The run folder holds config.json but no checkpoint yet: `--resume` starts it again (test_robustness
-    shows that it does); an interrupt before the run folder exists says to run the command again."""
-    import argparse
+def test_in_process_main_restores_the_signal_handlers(tmp_path, capsys):
+    """main() installs its SIGTERM/SIGHUP handlers only while a command runs (tests call it in-process)."""
+    from sparself.cli import main
 
-    from sparself.cli import _after_interrupt, _Terminated
-
-    run = tmp_path / "run"
-    argv = ["train", "scene", "--out", str(run), "--epochs", "9"]
-    args = argparse.Namespace(command="train", out=run)
-    line, code = _after_interrupt(args, argv, KeyboardInterrupt())
-    assert code == 130 and line == ("sparself train: interrupted by SIGINT; nothing was written (the partial output "
-                                    "was removed): run the same command again")
-    run.mkdir()
-    (run / "config.json").write_text("{}")
-    line, code = _after_interrupt(args, argv, _Terminated(signal.SIGHUP))
-    assert code == 129 and line == (f"sparself train: interrupted by SIGHUP; no checkpoint was written yet: "
-                                    f"`sparself train scene --out {run} --epochs 9 --resume` starts the run again")
+    before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    main(["info", str(tmp_path / "missing"), "-q"])
+    assert {s: signal.getsignal(s) for s in before} == before
+    assert "no such file or folder" in capsys.readouterr().err

@@ -577,8 +577,6 @@ def train(scene: Scene, out: Path | str, cfg: TrainConfig | None = None, *, resu
     write_marker(out)
     if ck is None:  # a fresh run over an old one (--overwrite): the old checkpoint must never be resumed
         (out / CHECKPOINT).unlink(missing_ok=True)
-    if ck is None:  # a fresh run over an old one (--overwrite): the old checkpoint must never be resumed
-        (out / CHECKPOINT).unlink(missing_ok=True)
     with atomic_file(out / CONFIG) as tmp:
         tmp.write_text(json.dumps(cfg.to_json(), indent=2))
     _truncate_log(out / LOG, start)
