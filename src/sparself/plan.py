@@ -323,7 +323,11 @@ def _check_source(path: Path, doc: dict, scene: Scene) -> None:
                          f"{scene.source} with `sparself plan`")
     c, sc = doc.get("source_center"), doc.get("source_scale")
     if isinstance(c, list) and isinstance(sc, (int, float)) and len(c) == 3 and len(scene) > 0:
-        moved = float(np.linalg.norm(np.asarray(c, float) - scene.centers().mean(0)))
+        try:
+            c, sc = np.asarray(c, float), float(sc)
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{path}: source_center/source_scale are not numbers") from None
+        moved = float(np.linalg.norm(c - scene.centers().mean(0)))
         if moved > 1e-3 * max(float(sc), 1e-12) or abs(float(sc) - scene.scale()) > 1e-3 * max(float(sc), 1e-12):
             raise InputError(f"{path}: plan was made for cameras elsewhere ({src}): same view names, other "
                              f"poses; make a new plan for {scene.source} with `sparself plan`")
@@ -356,7 +360,7 @@ def _vector(path: Path, i: int, rec: dict, key: str, n: int) -> np.ndarray:
         v = np.asarray(rec[key], dtype=np.float64)
     except KeyError:
         raise InputError(f"{path}: frame {i} has no {key!r}") from None
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"{path}: frame {i}: {key} is not a list of numbers") from None
     if v.size != n:
         raise InputError(f"{path}: frame {i}: {key} must have {n} numbers, got {v.size}")
@@ -397,40 +401,43 @@ def load_plan(path: Path, scene: Scene, *, check_source: bool = True) -> list[Fr
                          "(make it with --n-mid or --n-extra above 0)")
     if check_source:
         _check_source(path, doc, scene)
-    frames = []
-    for i, rec in enumerate(doc["frames"]):
-        if not isinstance(rec, dict):
-            raise InputError(f"{path}: frame {i} is not an object")
-        q = _vector(path, i, rec, "qvec", 4)
-        t = _vector(path, i, rec, "tvec", 3)
-        if np.linalg.norm(q) < 1e-9:
-            raise InputError(f"{path}: frame {i}: qvec is zero")
-        try:
-            pose = Pose(q, t)
-            pose.R  # normalises qvec: fails when its norm overflows
-        except ValueError:
-            raise InputError(f"{path}: frame {i}: qvec is not a usable rotation") from None
-        if "c2w" in rec:
-            c2w = _vector(path, i, rec, "c2w", 12).reshape(3, 4)
-            if np.abs(c2w - pose.c2w()[:3]).max() > 1e-6:
-                raise InputError(f"{path}: frame {i}: c2w disagrees with qvec/tvec (edit both, or drop c2w)")
-        try:
-            index = float(rec["index"])
-            cam = int(rec.get("camera_id", 1))
-        except (KeyError, TypeError, ValueError):
-            raise InputError(f"{path}: frame {i}: missing or non-numeric index/camera_id") from None
-        if not math.isfinite(index):
-            raise InputError(f"{path}: frame {i}: index is not finite")
-        if cam not in scene.cameras:
-            raise InputError(f"{path}: frame {i}: camera {cam} is not a camera of the scene "
-                             f"(has {sorted(scene.cameras)})")
-        name = rec.get("name") or novel_name(index)
-        frames.append(Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True))
+    frames = [_plan_frame(path, i, rec, scene) for i, rec in enumerate(doc["frames"])]
     # planned names become files beside the scene's own images: checked before anything is written
     check_names([f.name for f in frames], path, what="frame name", extensions=IMAGE_EXTENSIONS)
     if check_source:
         _check_indices(path, frames, scene)
     return frames
+
+
+def _plan_frame(path: Path, i: int, rec: object, scene: Scene) -> Frame:
+    """Frame ``i`` of a plan file, every field checked (InputError naming the file and the frame)."""
+    if not isinstance(rec, dict):
+        raise InputError(f"{path}: frame {i} is not an object")
+    q = _vector(path, i, rec, "qvec", 4)
+    t = _vector(path, i, rec, "tvec", 3)
+    if np.linalg.norm(q) < 1e-9:
+        raise InputError(f"{path}: frame {i}: qvec is zero")
+    try:
+        pose = Pose(q, t)
+        pose.R  # normalises qvec: fails when its norm overflows
+    except ValueError:
+        raise InputError(f"{path}: frame {i}: qvec is not a usable rotation") from None
+    if "c2w" in rec:
+        c2w = _vector(path, i, rec, "c2w", 12).reshape(3, 4)
+        if np.abs(c2w - pose.c2w()[:3]).max() > 1e-6:
+            raise InputError(f"{path}: frame {i}: c2w disagrees with qvec/tvec (edit both, or drop c2w)")
+    try:
+        index = float(rec["index"])
+        cam = int(rec.get("camera_id", 1))
+    except (KeyError, TypeError, ValueError, OverflowError):
+        raise InputError(f"{path}: frame {i}: missing or non-numeric index/camera_id") from None
+    if not math.isfinite(index):
+        raise InputError(f"{path}: frame {i}: index is not finite")
+    if cam not in scene.cameras:
+        raise InputError(f"{path}: frame {i}: camera {cam} is not a camera of the scene "
+                         f"(has {sorted(scene.cameras)})")
+    name = rec.get("name") or novel_name(index)
+    return Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
 
 
 # ---- the `sparself plan` command ------------------------------------------------------------------
