@@ -59,9 +59,9 @@ def out_for(relation: str, target: Path, root: Path, monkeypatch, file_name: str
 RELATIONS = ["same", "parent", "child", "dot", "symlink"]
 
 
-def refused(capsys, root: Path, cmd: str, argv: list, *needles: str, case: str = "") -> str:
+def refused(capsys, root: Path, cmd: str, argv: list, *needles: str, case: str = "", overwrite: bool = True) -> str:
     before = tree(root)
-    code, _, err = run(capsys, *argv, "--overwrite", "-q")
+    code, _, err = run(capsys, *argv, *(["--overwrite"] if overwrite else []), "-q")
     line = one_error(code, err, cmd, *needles, case=case)
     assert tree(root) == before, f"{cmd}: the tree changed"
     assert "sfm:" not in err and "training memory" not in err  # refused before any work
@@ -250,3 +250,17 @@ def test_train_overwrite_drops_the_old_checkpoint(trained, tmp_path, capsys, mon
     again = " ".join(a for a in argv if a != "--overwrite")
     assert f"sparself train: interrupted; stopped before the first checkpoint; start again with: sparself {again} " \
            "--resume" in err, err
+
+
+@pytest.mark.parametrize("relation", ["same", "parent", "child"])
+def test_batch_never_writes_over_a_capture_or_its_manifest(root, capsys, monkeypatch, relation):
+    need("batch")
+    scene = write_posed(root / "caps" / "cap0", make_scene(6), "llff")
+    (root / "lists").mkdir()
+    manifest = root / "lists" / "m.txt"
+    manifest.write_text(f"{scene}\n")
+    out = out_for(relation, scene, root, monkeypatch)
+    refused(capsys, root, "batch", ["batch", "densify", manifest, "--out", out, "--local"], f"output {out}",
+            _how(relation), "capture", case=f"--out {relation} capture [batch]", overwrite=False)
+    refused(capsys, root, "batch", ["batch", "densify", manifest, "--out", manifest.parent, "--local"],
+            "contains the manifest", case="--out holds the manifest [batch]", overwrite=False)

@@ -40,7 +40,7 @@ from .errors import InputError, OutputError, SparselfError
 from .evaluate import EvalConfig, evaluate, name_from_source, oracle_share, versions
 from .evaluate import read_manifest as read_text_manifest
 from .io import read_scene
-from .outputs import atomic_file, check_output_dir, remove_stale_temps
+from .outputs import Input, atomic_file, check_not_input, check_output_dir, remove_stale_temps, write_marker
 from .pipeline import densify
 from .plan import PlanConfig
 from .progress import show_progress
@@ -529,6 +529,7 @@ def run_batch(kind: str, manifest: Path, out: Path, base, cfg: BatchConfig | Non
         _import_ray()  # say how to install it before anything is written
     captures = read_manifest(Path(manifest), kind)
     out = Path(out)
+    check_not_input(out, [Input("manifest", manifest)] + [Input("capture", c.path) for c in captures])
     _claim(out, kind)
     units = make_units(kind, captures, base, out, cfg.cpus_per_task)
     for u in units:  # leftovers of a batch killed with SIGKILL
@@ -546,7 +547,6 @@ def run_batch(kind: str, manifest: Path, out: Path, base, cfg: BatchConfig | Non
 def _claim(out: Path, kind: str) -> None:
     """Use ``out`` for a batch of ``kind``: a new or empty folder, or one an earlier batch of the same kind
     made (resumed). Anything else is refused: the batch never writes into a folder it does not own."""
-    check_output_dir(out, overwrite=True)  # a file there, or an unwritable parent
     marker = out / "batch.json"
     if out.is_dir() and any(out.iterdir()):
         try:
@@ -556,7 +556,9 @@ def _claim(out: Path, kind: str) -> None:
         if old != kind:
             raise OutputError(f"{out}: holds a batch {old}, not a batch {kind}; use another --out")
         return
+    check_output_dir(out)  # a file there, or an unwritable parent
     out.mkdir(parents=True, exist_ok=True)
+    write_marker(out)
     with atomic_file(marker) as tmp:
         tmp.write_text(json.dumps({"format": "sparself-batch", "version": 1, "kind": kind}) + "\n")
 
