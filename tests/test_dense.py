@@ -381,6 +381,26 @@ def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, 
     assert names == [fr["name"] for fr in sj["frames"]] and not src[names[8]].startswith("novel_")
     for k in (2, 4, 8):
         assert sorted(p.name for p in (folder / f"images_{k}").iterdir()) == names
+    _check_masks(folder, sj)
+
+
+def _check_masks(folder: Path, sj: dict) -> None:
+    """Confidence masks: one single-channel PNG per image (and per images_N copy) of the same size,
+    transforms.json's mask_path names it, real photos are fully valid, synthesized ones hold values."""
+    from PIL import Image
+
+    frames = json.loads((folder / "transforms.json").read_text())["frames"]
+    assert len(frames) == len(sj["frames"])
+    synthetic = {fr["name"]: fr["synthetic"] for fr in sj["frames"]}
+    for fr in frames:
+        name = Path(fr["file_path"]).name
+        assert fr["mask_path"] == f"masks/{Path(name).stem}.png"
+        for sub in ("", "_2", "_4", "_8"):
+            img = Image.open(folder / f"images{sub}" / name)
+            mask = Image.open(folder / Path(fr["mask_path"]).parent.with_name(f"masks{sub}") / Path(fr["mask_path"]).name)
+            assert mask.mode == "L" and mask.size == img.size
+        m = np.asarray(Image.open(folder / fr["mask_path"]))
+        assert (m == 255).all() if not synthetic[name] else (m.min() < 255 and m.max() > 0)
 
 
 def test_no_downscaled_reaches_densify_and_synthesize(monkeypatch):

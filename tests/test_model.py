@@ -287,3 +287,75 @@ def test_queries_leave_one_out_novel_and_crops():
     net = _net(FCDecoder((4, 6)))
     out = render(net, src, q)  # the fc decoder renders its grid, resized to the queries' size
     assert out.shape == (2, 3, *src.hw)
+
+
+def test_k_nearest_source_sets_never_contain_the_target():
+    """K sources per query: the bracketing pair first, then the others nearest by camera centre; a
+    leave-one-out target never reads itself, for any K (and K larger than the sources available)."""
+    from planescene import small_plane_scene
+    from sparself.model.query import Sources, camera_centres, leave_one_out, novel_queries
+
+    src = Sources.from_scene(small_plane_scene(7)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0), np.array([2.0, 3.0]))
+    centres = camera_centres(src.w2c)
+    for k in (2, 3, 4, 10):
+        loo = leave_one_out(src, k=k)
+        for t, s in enumerate(loo.sets):
+            assert t not in s and len(s) == min(k, len(src) - 1) and len(set(s)) == len(s)
+            assert s[:2] == leave_one_out(src).sets[t]  # the pair comes first
+            rest = [i for i in range(len(src)) if i not in (t, *s[:2])]
+            d = np.linalg.norm(centres - centres[t], axis=1)
+            assert sorted(d[list(s[2:])]) == sorted(d[rest])[:len(s) - 2]  # the nearest others
+    q = novel_queries(src, src.K[:1].numpy(), src.w2c[3:4].numpy(), src.vectors[:1].numpy(), [2.5], src.hw, k=4)
+    assert q.sets[0][:2] == (2, 3) and len(q.sets[0]) == 4 and 3 in q.sets[0]
+
+
+def test_sweep_decoder_with_four_sources_runs_and_trains():
+    """A decoder built for 4 sources reads 4-source volumes (the attention is learned: gradients reach it)
+    and its outputs stay in range where all sources agree on a flat colour."""
+    from sparself.model import sweep_volume
+
+    dec = SweepDecoder(n_sources=4)
+    src = torch.full((4, 3, 12, 14), 0.3)
+    K = torch.tensor([[10.0, 0, 7], [0, 10.0, 6], [0, 0, 1]])
+    w2c = torch.eye(4).repeat(4, 1, 1)
+    w2c[:, 0, 3] = torch.tensor([-0.1, 0.1, -0.2, 0.2])
+    x = sweep_volume(src, K.expand(4, 3, 3), w2c, K, torch.eye(4), torch.tensor([2.0, 4.0, 8.0]), (12, 14))
+    assert x.shape == (16, 4, 12, 14)
+    out = dec.decode_volume(x[None], torch.zeros(1, 512))
+    assert torch.allclose(out[:, :, 3:-3, 3:-3], torch.full_like(out[:, :, 3:-3, 3:-3], 0.3), atol=1e-4)
+    x2 = x.clone()
+    x2[3:6, :, :, :7] = 0.9  # source 1 disagrees on the left half
+    dec.decode_volume(x2[None], torch.randn(1, 512)).square().mean().backward()
+    assert dec.attend[-1].weight.grad is not None and dec.attend[-1].weight.grad.abs().sum() > 0
+
+
+def test_confidence_is_low_where_the_sources_disagree():
+    """Two textured sources that agree at one depth plane on the right half (and after alignment) but at
+    no depth on the left: the decoder's confidence is high on the right, low on the left, whatever the
+    gate does."""
+    from sparself.model.decoders import confidence_map
+
+    h, w, d = 12, 20, 6
+    gen = torch.Generator().manual_seed(0)
+    c1 = torch.rand(1, 3, d + 1, h, w, generator=gen)
+    c2 = torch.rand(1, 3, d + 1, h, w, generator=gen)
+    c2[:, :, 2, :, w // 2:] = c1[:, :, 2, :, w // 2:]  # the right half's true depth: plane 2
+    c2[:, :, d, :, w // 2:] = c1[:, :, d, :, w // 2:]  # and the aligned pair agrees there
+    v = torch.ones(1, 1, d + 1, h, w)
+    x = torch.cat([c1, c2, v, v], 1)
+    for gate_init in (-5.0, 0.0, 5.0):
+        dec = SweepDecoder(gate_init=gate_init)
+        conf = dec.decode_parts(x, torch.zeros(1, 512)).confidence[0, 0]
+        assert conf.shape == (h, w) and 0 <= conf.min() and conf.max() <= 1
+        left, right = conf[:, 2: w // 2 - 3].mean(), conf[:, w // 2 + 3: -2].mean()
+        assert right > 0.5 and left < 0.2 * right, (gate_init, left, right)
+    # the parts: an ambiguous depth lowers confidence only where the candidate depths' colours differ
+    flat = torch.full((1, 1, d, 2, 2), 1.0 / d)
+    peaked = torch.zeros(1, 1, d, 2, 2)
+    peaked[:, :, 2] = 1
+    zero, one = torch.zeros(1, 1, 2, 2), torch.ones(1, 1, 2, 2)
+    assert torch.allclose(confidence_map(flat, zero, one, zero, one), zero, atol=1e-4)
+    assert torch.allclose(confidence_map(flat, zero, zero, zero, one), one, atol=1e-5)
+    assert torch.allclose(confidence_map(peaked, zero, one, zero, one), one, atol=1e-5)
+    assert torch.allclose(confidence_map(peaked, one, zero, zero, one), zero, atol=1e-4)  # sources disagree
+    assert torch.allclose(confidence_map(flat, zero, one, zero, zero), one)  # the fallback's agreement

@@ -16,7 +16,7 @@ from .plan import PlanConfig, plan_sequence, save_plan
 from .plot import plot_cameras
 from .scene import Scene, preloaded
 from .sfm import SfmConfig, recover_poses
-from .synthesize import densify_scene, synthesize
+from .synthesize import densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
 
 log = logging.getLogger(__name__)
@@ -72,8 +72,8 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     tcfg = replace(cfg.train, size=long_side)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
-        images = synthesize(run, scene, targets)
-        dense = densify_scene(scene, targets, images)
+        syn = synthesize_with_confidence(run, scene, targets)
+        dense = densify_scene(scene, targets, syn.images, syn.confidence)
         sio.write_scene_into(dense, tmp / "scene", dense=sio.DenseInfo(
             "../run" if cfg.keep_run else None, "../plan.json", tuple(scene.frames[i].name for i in tcfg.holdout),
             cfg.downscaled))

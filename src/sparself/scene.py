@@ -116,6 +116,7 @@ class Frame:
     path: the image file, or None for a pose without a photo (a planned view before synthesis).
     image: an in-memory image (H, W, 3) float32 in [0, 1], used instead of ``path`` when set
            (synthesized views before they are written).
+    confidence: a synthesized view's per-pixel confidence (H, W) in [0, 1], written as ``masks/``.
     """
 
     name: str
@@ -125,6 +126,7 @@ class Frame:
     path: Path | None = None
     image: np.ndarray | None = None
     synthetic: bool = False
+    confidence: np.ndarray | None = None
 
 
 @dataclass

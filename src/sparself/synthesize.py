@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +18,7 @@ import torch
 from . import io as sio
 from .consistency import recorded_scene, run_scene_mismatch
 from .errors import InputError
-from .model.query import Sources, flow_aligned, novel_queries, render
+from .model.query import Sources, flow_aligned, novel_queries, render_with_confidence
 from .names import check_names
 from .outputs import Input, check_not_input, check_output_dir, scene_folder, scene_inputs
 from .plan import load_plan, order_frames, reindexed
@@ -39,18 +39,34 @@ def _target_hw(scene: Scene, targets: list[Frame]) -> tuple[int, int]:
     return sizes.pop()
 
 
-@torch.no_grad()
+@dataclass
+class Synthesized:
+    """Synthesized views (T, H, W, 3) float32 in [0, 1] and their per-pixel confidence (T, H, W) in [0, 1]
+    (low where the depth is ambiguous, the sources disagree or the decoder fell back to flow that
+    disagrees)."""
+
+    images: np.ndarray
+    confidence: np.ndarray
+
+
 def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
+    """The views of ``targets`` (:func:`synthesize_with_confidence` without the confidence)."""
+    return synthesize_with_confidence(run_or_model, scene, targets).images
+
+
+@torch.no_grad()
+def synthesize_with_confidence(run_or_model, scene: Scene, targets: list[Frame]) -> Synthesized:
     """Synthesize the views of ``targets`` from the source frames of ``scene``.
 
     run_or_model: a :class:`sparself.train.Run` or a run folder / checkpoint path.
     scene: source frames with images (at any resolution: their cameras give the size).
     targets: Frames with pose, camera_id (a camera of ``scene``), fractional index; their images are
-    never read. Returns (T, H, W, 3) float32 in [0, 1] at the targets' camera size (all equal).
+    never read. Returns images (T, H, W, 3) float32 in [0, 1] at the targets' camera size (all equal),
+    and their confidence (T, H, W).
     """
     run = _as_run(run_or_model)
     if not targets:
-        return np.zeros((0, 1, 1, 3), np.float32)
+        return Synthesized(np.zeros((0, 1, 1, 3), np.float32), np.zeros((0, 1, 1), np.float32))
     scene = one_size(scene)
     hw = _target_hw(scene, targets)
     model = run.model.eval()
@@ -58,12 +74,13 @@ def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
     sources = Sources.from_scene(scene).to(dev).posed(run.norm, run.depths)
     queries = novel_queries(sources, np.stack([scene.cameras[t.camera_id].K for t in targets]),
                             np.stack([t.pose.w2c() for t in targets]), run.norm.vectors([t.pose for t in targets]),
-                            [t.index for t in targets], hw)
+                            [t.index for t in targets], hw, run.cfg.sources)
     if run.uses_flow():
         queries = flow_aligned(sources, queries)
     with autocast(dev, amp_dtype(run.cfg.amp, dev)):
-        out = render(model, sources, queries)
-    return out.float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
+        out, conf = render_with_confidence(model, sources, queries)
+    return Synthesized(out.float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32),
+                       conf.float().clamp(0, 1)[:, 0].cpu().numpy().astype(np.float32))
 
 
 def synthesizer(run_or_model):
@@ -72,12 +89,15 @@ def synthesizer(run_or_model):
     return lambda scene, targets, **_: synthesize(run, scene, targets)
 
 
-def densify_scene(scene: Scene, targets: list[Frame], images: np.ndarray) -> Scene:
-    """The scene with the synthesized frames added (``image`` set, ``synthetic=True``), ordered by index."""
+def densify_scene(scene: Scene, targets: list[Frame], images: np.ndarray,
+                  confidence: np.ndarray | None = None) -> Scene:
+    """The scene with the synthesized frames added (``image`` set, ``synthetic=True``, and ``confidence``
+    (T, H, W) when given: written as ``masks/``), ordered by index."""
     if len(targets) != len(images):
         raise ValueError(f"{len(targets)} targets but {len(images)} images")
-    new = [replace(t, image=np.asarray(img, np.float32), path=None, synthetic=True)
-           for t, img in zip(targets, images)]
+    confs = [None] * len(targets) if confidence is None else list(confidence)
+    new = [replace(t, image=np.asarray(img, np.float32), path=None, synthetic=True, confidence=c)
+           for t, img, c in zip(targets, images, confs)]
     frames = sorted(list(scene.frames) + new, key=lambda f: f.index)
     return replace(scene, frames=frames, meta=dict(scene.meta, synthesized=len(new)))
 
@@ -114,6 +134,7 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
     order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))
-    dense = densify_scene(scene, targets, synthesize(run, scene, targets))
+    syn = synthesize_with_confidence(run, scene, targets)
+    dense = densify_scene(scene, targets, syn.images, syn.confidence)
     return sio.write_scene(dense, Path(out), overwrite=overwrite,
                            dense=sio.DenseInfo(str(run_path), str(plan), downscale=downscaled))

@@ -81,6 +81,9 @@ class TrainConfig:
     ssim_weight: float = option(0.1, "loss = MSE + ssim_weight x (1 - SSIM) (7 px Gaussian window)")
     fc_side: int = option(48, "long side in px of the fc decoder's output grid (upsampled to the target)")
     context: bool = option(True, "ablation: zero the LSTM output given to the decoder")
+    sources: int = option(2, "source views per rendered view (sweep decoder): the two bracketing ones plus "
+                          "the nearest others by camera centre; above 2 the decoder weighs them per pixel "
+                          "with learned attention conditioned on the LSTM context")
     finetune_backbone: bool | None = option(None, "train ResNet-18 end to end (the paper); auto: yes on "
                                             "CUDA, no on CPU (features computed once)")
     seed: int = option(0, "random seed (same seed, same result on CPU)")
@@ -102,6 +105,8 @@ class TrainConfig:
             raise ConfigError(f"windows must be odd sizes >= 1, got {self.windows}")
         if self.decoder not in DECODERS:
             raise ConfigError(f"unknown decoder {self.decoder!r}; choose one of {', '.join(DECODERS)}")
+        if int(self.sources) < 2:
+            raise ConfigError(f"sources must be >= 2, got {self.sources}")
         for name in ("epochs", "size", "crop", "batch_size", "planes", "channels", "fc_side", "checkpoint_every"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -230,7 +235,8 @@ class RunMeta:
 
 def build_model(cfg: TrainConfig, meta: RunMeta) -> CNNLSTM:
     dec = build_decoder(cfg.decoder, channels=cfg.channels, fc_hw=tuple(meta.fc_hw), windows=cfg.windows,
-                        extra_layers=cfg.extra_layers, gate=cfg.gate, gate_init=cfg.gate_init)
+                        extra_layers=cfg.extra_layers, gate=cfg.gate, gate_init=cfg.gate_init,
+                        n_sources=cfg.sources)
     return CNNLSTM(dec, backbone_size=meta.backbone_size, context=cfg.context)
 
 
@@ -342,7 +348,7 @@ def training_data(model: CNNLSTM, sources: Sources, cfg: TrainConfig, finetune: 
     """Leave-one-out queries of every source (flow-aligned sources computed once per run), their ground
     truth, and the backbone inputs (for a frozen backbone, its outputs, computed once)."""
     hw = model.decoder.native_hw(sources.hw)
-    queries = leave_one_out(sources, hw)
+    queries = leave_one_out(sources, hw, cfg.sources)
     if cfg.fallback == "flow" and model.decoder.reads_sources:
         queries = flow_aligned(sources, queries)
     truth = sources.images

@@ -155,7 +155,10 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
                                   else f.image))
     write_marker(folder)
     written = replace(scene, frames=new_frames, source=folder, meta=dict(scene.meta))
-    _write_formats(written, folder, formats, text, split)
+    masks = images != "none" and any(f.confidence is not None for f in scene.frames)
+    if masks:  # synthesized views' confidence (nerfstudio's mask_path)
+        _dense.write_masks(folder, written, _dense.FACTORS if dense.downscale else ())
+    _write_formats(written, folder, formats, text, split, masks)
     if split is not None:
         _dense.write_split_files(folder, split)
         _dense.write_sparself_json(folder, written, split, sources, dense)
@@ -164,7 +167,7 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
     return written
 
 
-def _write_formats(scene: Scene, folder: Path, formats: Sequence[str], text: bool, split) -> None:
+def _write_formats(scene: Scene, folder: Path, formats: Sequence[str], text: bool, split, masks: bool = False) -> None:
     if "colmap" in formats:
         write_colmap(scene, folder / "sparse" / "0")
         if text:
@@ -172,7 +175,7 @@ def _write_formats(scene: Scene, folder: Path, formats: Sequence[str], text: boo
     if "llff" in formats:
         write_llff(scene, folder)
     if "nerfstudio" in formats:
-        write_nerfstudio(scene, folder, split=split)
+        write_nerfstudio(scene, folder, split=split, masks=masks)
     if "middlebury" in formats:
         write_middlebury(scene, folder / "scene_par.txt")
 

@@ -23,6 +23,8 @@ from typing import Sequence
 
 import numpy as np
 
+from PIL import Image
+
 from ..scene import Scene, load_image, resize_image, save_image
 
 log = logging.getLogger(__name__)
@@ -31,6 +33,8 @@ EVERY = 8  # the hold-out period of gsplat, NeRF/LLFF, 3DGS and nerfstudio's int
 FACTORS = (2, 4, 8)
 SPARSELF_JSON = "sparself.json"
 FORMAT, VERSION = "sparself-scene", 1
+MASKS = "masks"  # nerfstudio's per-frame mask folder (mask_path); masks_<f> beside images_<f>
+MASK_FLOOR = 0.2  # confidence below which a mask pixel is 0, which nerfstudio ignores (it reads any other as valid)
 LIST_FILES = {"train": "train_list.txt", "val": "val_list.txt", "test": "test_list.txt"}  # nerfstudio colmap
 _JPEG = (".jpg", ".jpeg")
 _RANKED = re.compile(r"^\d{4,}_")
@@ -215,3 +219,33 @@ def mark_synthetic(scene: Scene, names: set[str]) -> Scene:
     """Frames whose name is in ``names`` get ``synthetic=True``."""
     scene.frames = [replace(f, synthetic=True) if f.name in names else f for f in scene.frames]
     return scene
+
+
+def mask_name(image_name: str) -> str:
+    """The mask file of an image: same stem, always ``.png`` (lossless, single channel)."""
+    return str(Path(image_name).with_suffix(".png"))
+
+
+def mask_values(confidence: np.ndarray) -> np.ndarray:
+    """8-bit mask of a confidence map (H, W) in [0, 1]: round(255 c), and 0 below :data:`MASK_FLOOR`
+    (nerfstudio ignores 0 and uses every other value; a reader that weights pixels gets c)."""
+    c = np.clip(np.nan_to_num(np.asarray(confidence, np.float32)), 0.0, 1.0)
+    m = np.maximum(np.round(c * 255.0), 1).astype(np.uint8)
+    m[c < MASK_FLOOR] = 0
+    return m
+
+
+def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None:
+    """``masks/<stem>.png`` for every frame: a synthesized frame's confidence (:func:`mask_values`), 255
+    for a real photo (nerfstudio needs a mask for every frame or none); and ``masks_<f>`` copies at the
+    ``images_<f>`` sizes (nearest neighbour, so that ignored pixels stay 0)."""
+    for i, f in enumerate(scene.frames):
+        w, h = scene.image_size(i)
+        conf = np.ones((h, w), np.float32) if f.confidence is None else np.asarray(f.confidence, np.float32)
+        mask = Image.fromarray(mask_values(conf), mode="L")
+        if mask.size != (w, h):
+            mask = mask.resize((w, h), Image.NEAREST)
+        for k, sub in [(1, MASKS)] + [(k, f"{MASKS}_{k}") for k in factors]:
+            dst = Path(folder) / sub / mask_name(f.name)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.NEAREST)).save(dst)

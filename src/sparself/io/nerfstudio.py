@@ -21,6 +21,7 @@ from ..errors import InputError
 from ..geometry import Pose
 from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of
+from .dense import MASKS, mask_name
 from ._common import check_finite, frame_name_order, order_frames, unique_cameras
 
 log = logging.getLogger(__name__)
@@ -159,10 +160,11 @@ def _intrinsics(cam: Camera) -> dict:
     return d
 
 
-def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None) -> dict:
+def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None, masks: bool = False) -> dict:
     """The ``transforms.json`` content: global intrinsics when the scene has one camera, else per frame;
     each frame flagged ``"synthetic"``; with a :class:`sparself.io.dense.Split`, the ``train_filenames``,
-    ``val_filenames`` and ``test_filenames`` lists (nerfstudio needs all three when one is present)."""
+    ``val_filenames`` and ``test_filenames`` lists (nerfstudio needs all three when one is present);
+    with ``masks``, each frame's ``mask_path`` (``masks/<stem>.png``, :func:`sparself.io.dense.write_masks`)."""
     order = frame_name_order(scene)
     one = len({scene.frames[i].camera_id for i in order}) == 1
     out: dict = dict(_intrinsics(scene.camera(order[0]))) if one else {}
@@ -171,6 +173,8 @@ def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None) -> 
         f = scene.frames[i]
         fr = {"file_path": image_prefix + f.name, "transform_matrix": (f.pose.c2w() @ _GL).tolist(),
               "synthetic": bool(f.synthetic)}
+        if masks:
+            fr["mask_path"] = f"{MASKS}/{mask_name(f.name)}"
         if not one:
             fr.update(_intrinsics(scene.camera(i)))
         frames.append(fr)
@@ -183,12 +187,13 @@ def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None) -> 
     return out
 
 
-def write_nerfstudio(scene: Scene, out_dir: Path, image_prefix: str = "images/", split=None) -> Path:
+def write_nerfstudio(scene: Scene, out_dir: Path, image_prefix: str = "images/", split=None,
+                     masks: bool = False) -> Path:
     """Write ``out_dir/transforms.json`` (and ``sparse_pc.ply`` when the scene has points, which
     nerfstudio's splatfacto uses to initialise). Not atomic by itself: use ``outputs.atomic_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    d = transforms_dict(scene, image_prefix, split)
+    d = transforms_dict(scene, image_prefix, split, masks)
     if "ply_file_path" in d:
         _write_ply(out_dir / d["ply_file_path"], np.asarray(scene.points), scene.meta.get("point_colors"))
     out = out_dir / FILENAME

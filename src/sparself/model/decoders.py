@@ -25,6 +25,8 @@ size hw at before any resizing (training compares at that size).
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
@@ -65,6 +67,11 @@ class FCDecoder(nn.Module):
             out = F.interpolate(out, size=tuple(queries.hw), mode="bilinear", align_corners=False)
         return out
 
+    def with_confidence(self, sources: "Sources", queries: "Queries", ctx: torch.Tensor):
+        """:meth:`forward` and a confidence of 1 everywhere (this decoder has no measure of its own)."""
+        out = self.forward(sources, queries, ctx)
+        return out, torch.ones_like(out[:, :1])
+
 
 def blend_weights(w2c_src: torch.Tensor, w2c_dst: torch.Tensor) -> torch.Tensor:
     """Plain-blend weights of two sources for a target: inverse to their camera-centre distances,
@@ -83,29 +90,33 @@ def blend_weights(w2c_src: torch.Tensor, w2c_dst: torch.Tensor) -> torch.Tensor:
 def sweep_volume(src: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
                  K_dst: torch.Tensor, w2c_dst: torch.Tensor, depths: torch.Tensor,
                  out_hw: tuple[int, int], plain: torch.Tensor | None = None) -> torch.Tensor:
-    """Decoder input for one target: its two sources warped onto every depth plane, plus one plane of
-    the sources unwarped (the plain blend's input), or aligned by optical flow when ``plain`` is given.
+    """Decoder input for one target: its n >= 2 sources (the bracketing pair first) warped onto every
+    depth plane, plus one plane of the sources unwarped (the plain blend's input), or the pair aligned by
+    optical flow when ``plain`` is given.
 
-    src: (2, 3, H, W); K_src (2, 3, 3); w2c_src (2, 4, 4); K_dst (3, 3) (shifted for a crop);
-    w2c_dst (4, 4); depths (D,). -> (8, D + 1, h, w). Planes 0..D-1: colours of both sources (6) and
-    their validity (2) on each depth plane. Plane D: both sources mapped by their intrinsics only
-    (``K_src K_dst^-1``: the source image resized/cropped to the target camera, as the plain-blend
-    baseline uses it), with validity times the :func:`blend_weights` in channels 6-7. plain: (2, 3, h, w),
-    the two sources already aligned to the target (e.g. by flow, :func:`sparself.warp.flow_pair`),
-    used for plane D instead of the unwarped sources (validity 1).
+    src: (n, 3, H, W); K_src (n, 3, 3); w2c_src (n, 4, 4); K_dst (3, 3) (shifted for a crop);
+    w2c_dst (4, 4); depths (D,). -> (4n, D + 1, h, w): channels 0..3n-1 the sources' colours, 3n..4n-1
+    their validity (for n = 2: colours of both (6), validity (2)). Planes 0..D-1: the depth planes. Plane
+    D: the sources mapped by their intrinsics only (``K_src K_dst^-1``: the source image resized/cropped
+    to the target camera, as the plain-blend baseline uses it), with validity times the pair's
+    :func:`blend_weights` (0 for further sources). plain: (2, 3, h, w), the pair already aligned to the
+    target (e.g. by flow, :func:`sparself.warp.flow_pair`), used for plane D instead (validity 1).
     """
-    vol, valid = plane_sweep(src, K_src, w2c_src, K_dst, w2c_dst, depths, out_hw)  # (2,D,3,h,w), (2,D,1,h,w)
+    n = src.shape[0]
+    vol, valid = plane_sweep(src, K_src, w2c_src, K_dst, w2c_dst, depths, out_hw)  # (n,D,3,h,w), (n,D,1,h,w)
     K_src_t = torch.as_tensor(K_src, dtype=src.dtype, device=src.device)
     K_dst_t = torch.as_tensor(K_dst, dtype=src.dtype, device=src.device)
-    if plain is None:
-        ident, ivalid = homography_warp(src, K_src_t @ torch.linalg.inv(K_dst_t)[None], out_hw)  # (2,3,h,w)
-    else:
-        ident, ivalid = plain.to(src.dtype), torch.ones_like(plain[:, :1], dtype=src.dtype)
-    wts = blend_weights(torch.as_tensor(w2c_src, dtype=torch.float64, device=src.device),
+    if plain is None or n > 2:
+        ident, ivalid = homography_warp(src, K_src_t @ torch.linalg.inv(K_dst_t)[None], out_hw)  # (n,3,h,w)
+    if plain is not None:
+        ident = torch.cat([plain.to(src.dtype), ident[2:]]) if n > 2 else plain.to(src.dtype)
+        ivalid = torch.cat([torch.ones_like(plain[:, :1], dtype=src.dtype), *([ivalid[2:]] if n > 2 else [])])
+    wts = blend_weights(torch.as_tensor(w2c_src[:2], dtype=torch.float64, device=src.device),
                         torch.as_tensor(w2c_dst, dtype=torch.float64, device=src.device)).to(src.dtype)
-    vol = torch.cat([vol * valid, (ident * ivalid)[:, None]], dim=1)  # (2, D+1, 3, h, w)
+    wts = torch.cat([wts, wts.new_zeros(n - 2)])
+    vol = torch.cat([vol * valid, (ident * ivalid)[:, None]], dim=1)  # (n, D+1, 3, h, w)
     valid = torch.cat([valid, (ivalid * wts[:, None, None, None])[:, None]], dim=1)
-    x = torch.cat([vol[0], vol[1], valid[0], valid[1]], dim=1)  # (D+1, 8, h, w)
+    x = torch.cat([*vol, *valid], dim=1)  # (D+1, 4n, h, w)
     return x.permute(1, 0, 2, 3).contiguous()
 
 
@@ -139,7 +150,7 @@ class SweepDecoder(nn.Module):
 
     def __init__(self, channels: int = 8, hidden: int = 512, residual: bool = True, windows=(5,),
                  extra_layers: int = 0, cost_scale: float = 30.0, gate: bool = True, gate_init: float = 0.0,
-                 gate_gain: float = 10.0) -> None:
+                 gate_gain: float = 10.0, n_sources: int = 2) -> None:
         super().__init__()
         c = channels
         self.windows = tuple(int(k) for k in windows)
@@ -157,6 +168,12 @@ class SweepDecoder(nn.Module):
         if self.residual is not None:
             nn.init.zeros_(self.residual[-1].weight)
             nn.init.zeros_(self.residual[-1].bias)
+        self.attend = None
+        if n_sources > 2:  # per-source attention: context features, deviation, visibility, is-bracketing
+            self.attend = nn.Sequential(nn.Conv3d(c + 3, c, 1), nn.ReLU(inplace=True), nn.Conv3d(c, 1, 1))
+            nn.init.zeros_(self.attend[-1].weight)
+            nn.init.zeros_(self.attend[-1].bias)
+            self.extra_bias = nn.Parameter(torch.tensor(-4.0))  # start close to the pair alone
         self.gate_gain = float(gate_gain)
         self.gate = None
         if gate:
@@ -171,44 +188,58 @@ class SweepDecoder(nn.Module):
 
     def forward(self, sources: "Sources", queries: "Queries", ctx: torch.Tensor) -> torch.Tensor:
         """Each query (or its crop) decoded from the sweep volume of its source set. -> (T, 3, h, w)."""
+        return self.with_confidence(sources, queries, ctx)[0]
+
+    def with_confidence(self, sources: "Sources", queries: "Queries", ctx: torch.Tensor):
+        """:meth:`forward` and each pixel's confidence in [0, 1] (:meth:`decode_parts`).
+        -> ((T, 3, h, w), (T, 1, h, w))."""
         if queries.crops is not None:
             x = torch.stack([_volume(sources, queries, b, c) for b, c in enumerate(queries.crops)])
-            return self.decode_volume(x, ctx)
-        h, w = queries.hw
-        if max(h, w) > self.tile:
-            return torch.stack([self._decode_tiled(sources, queries, ctx, b) for b in range(len(queries))])
-        per = max(1, self.max_voxels // (len(sources.depths) * h * w))
-        out = []
-        for a in range(0, len(queries), per):
-            x = torch.stack([_volume(sources, queries, b, (0, 0, h, w)) for b in range(a, min(a + per, len(queries)))])
-            out.append(self.decode_volume(x, ctx[a:a + per]))
-        return torch.cat(out)
+            both = self._decode4(x, ctx)
+        else:
+            h, w = queries.hw
+            if max(h, w) > self.tile:
+                both = torch.stack([self._decode_tiled(sources, queries, ctx, b) for b in range(len(queries))])
+            else:
+                per = max(1, self.max_voxels // (len(sources.depths) * h * w))
+                both = torch.cat([self._decode4(torch.stack([_volume(sources, queries, b, (0, 0, h, w))
+                                                             for b in range(a, min(a + per, len(queries)))]),
+                                                ctx[a:a + per]) for a in range(0, len(queries), per)])
+        return both[:, :3], both[:, 3:]
+
+    def _decode4(self, x: torch.Tensor, ctx: torch.Tensor) -> torch.Tensor:
+        parts = self.decode_parts(x, ctx)
+        return torch.cat([parts.colour, parts.confidence], 1)
 
     def _decode_tiled(self, sources: "Sources", queries: "Queries", ctx: torch.Tensor, b: int) -> torch.Tensor:
-        """Query b's whole image in overlapping tiles. -> (3, H, W)."""
+        """Query b's whole image (colour and confidence) in overlapping tiles. -> (4, H, W)."""
         (h, w), tile, margin = queries.hw, self.tile, self.tile_margin
-        out = torch.zeros(3, h, w, device=ctx.device)
+        out = torch.zeros(4, h, w, device=ctx.device)
         for y0 in range(0, h, tile):
             for x0 in range(0, w, tile):
                 ya, xa = max(0, y0 - margin), max(0, x0 - margin)
                 yb, xb = min(h, y0 + tile + margin), min(w, x0 + tile + margin)
                 x = _volume(sources, queries, b, (ya, xa, yb - ya, xb - xa))
-                pred = self.decode_volume(x[None], ctx[b][None])[0]
+                pred = self._decode4(x[None], ctx[b][None])[0]
                 th, tw = min(tile, h - y0), min(tile, w - x0)
                 out[:, y0:y0 + th, x0:x0 + tw] = pred[:, y0 - ya:y0 - ya + th, x0 - xa:x0 - xa + tw]
         return out
 
     def decode_volume(self, x: torch.Tensor, ctx: torch.Tensor, return_gate: bool = False):
-        """x: (B, 8, D + 1, h, w) from :func:`sweep_volume`; ctx: (B, 512) -> (B, 3, h, w) (and the gate
+        """x: (B, 4n, D + 1, h, w) from :func:`sweep_volume`; ctx: (B, 512) -> (B, 3, h, w) (and the gate
         (B, 1, h, w) if asked; ones without a gate)."""
-        x, plain = x[:, :, :-1], x[:, :, -1]
-        c1, c2, v1, v2 = x[:, 0:3], x[:, 3:6], x[:, 6:7], x[:, 7:8]
-        b, _, d, h, w = x.shape
-        both = v1 * v2
-        diff = (c1 - c2).abs().mean(1, keepdim=True) * both + (1 - both)  # unseen counts as mismatch
+        parts = self.decode_parts(x, ctx)
+        return (parts.colour, parts.gate) if return_gate else parts.colour
+
+    def _depth_and_colour(self, c, v, ctx):
+        """Per-voxel depth probabilities and source-weighted colour. c (B, n, 3, D, h, w), v (B, n, 1, D, h, w)
+        -> p (B, 1, D, h, w), colour (B, 3, D, h, w), cost (B, D, h, w)."""
+        diff = match_cost(c, v)
+        b, _, d, h, w = diff.shape
         flat = diff.permute(0, 2, 1, 3, 4).reshape(b * d, 1, h, w)
         boxes = [F.avg_pool2d(flat, k, 1, k // 2, count_include_pad=False).reshape(b, d, 1, h, w)
                  .permute(0, 2, 1, 3, 4) for k in self.windows]
+        v1, v2 = v[:, 0], v[:, 1]
         feat = torch.cat([diff, *boxes, v1, v2], 1).contiguous(memory_format=torch.channels_last_3d)
         hid = self.conv_in(feat)
         g, beta = self.film(ctx).chunk(2, dim=1)
@@ -218,24 +249,93 @@ class SweepDecoder(nn.Module):
         logits = self.conv_out(hid)  # (B, 2, D, h, w)
         cost = torch.stack(boxes).mean(0)[:, 0]  # (B, D, h, w)
         p = torch.softmax(logits[:, 0] - self.cost_scale * cost, dim=1)[:, None]  # over depth
-        a = torch.sigmoid(logits[:, 1])[:, None]
-        w1, w2 = a * v1, (1 - a) * v2
-        colour = (w1 * c1 + w2 * c2) / (w1 + w2).clamp(min=1e-6)
+        if self.attend is None:  # the bracketing pair: one blend weight per voxel
+            a = torch.sigmoid(logits[:, 1])[:, None]
+            w1, w2 = a * v1, (1 - a) * v2
+            return p, (w1 * c[:, 0] + w2 * c[:, 1]) / (w1 + w2).clamp(min=1e-6), cost
+        return p, self._attended_colour(c, v, hid, logits[:, 1]), cost
+
+    def _attended_colour(self, c, v, hid, pair_logit):
+        """Colour from n > 2 sources: per-voxel softmax weights over the visible sources, from the
+        context-conditioned features ``hid`` and each source's deviation from the visible mean colour.
+        The pair keeps its learned blend logit; further sources start strongly down-weighted."""
+        n = c.shape[1]
+        mean = (v * c).sum(1, keepdim=True) / v.sum(1, keepdim=True).clamp(min=1e-6)
+        dev = ((c - mean).abs().mean(2, keepdim=True) * v)  # (B, n, 1, D, h, w)
+        flag = torch.zeros_like(dev)
+        flag[:, :2] = 1
+        per = torch.cat([hid[:, None].expand(-1, n, -1, -1, -1, -1), dev, v, flag], 2)
+        logit = self.attend(per.flatten(0, 1)).view(v.shape)  # (B, n, 1, D, h, w)
+        pair = torch.cat([pair_logit[:, None, None], torch.zeros_like(logit[:, 1:])], 1)
+        logit = logit + self.extra_bias * (1 - flag) + pair
+        logit = logit.masked_fill(v <= 0, -1e4)
+        wts = torch.softmax(logit, 1) * v
+        return (wts * c).sum(1) / wts.sum(1).clamp(min=1e-6)
+
+    def decode_parts(self, x: torch.Tensor, ctx: torch.Tensor) -> "Decoded":
+        """Colour, gate and confidence of a batch of volumes. x: (B, 4n, D + 1, h, w); ctx: (B, 512)."""
+        b, ch, d1, h, w = x.shape
+        n = ch // 4
+        c = x[:, :3 * n].reshape(b, n, 3, d1, h, w)
+        v = x[:, 3 * n:].reshape(b, n, 1, d1, h, w)
+        p, colour, cost = self._depth_and_colour(c[..., :-1, :, :], v[..., :-1, :, :], ctx)
         out = (p * colour).sum(2)  # (B, 3, h, w)
-        cover = (p * ((v1 + v2) > 0).to(x.dtype)).sum(2)  # how much of p saw a source
+        cover = (p * (v[..., :-1, :, :].sum(1) > 0).to(x.dtype)).sum(2)  # how much of p saw a source
         spread = (p * (colour - out[:, :, None]).abs()).sum(2)  # disagreement along depth
+        p1, p2, pw1, pw2 = c[:, 0, :, -1], c[:, 1, :, -1], v[:, 0, :, -1], v[:, 1, :, -1]
+        plain_diff = (p1 - p2).abs().mean(1, keepdim=True)
+        exp_cost = (p[:, 0] * cost).sum(1, keepdim=True)
         gate = torch.ones_like(cover)
         if self.gate is not None:
-            p1, p2, pw1, pw2 = plain[:, 0:3], plain[:, 3:6], plain[:, 6:7], plain[:, 7:8]
             blend = (pw1 * p1 + pw2 * p2) / (pw1 + pw2).clamp(min=1e-6)
-            plain_diff = (p1 - p2).abs().mean(1, keepdim=True)
-            exp_cost = (p[:, 0] * cost).sum(1, keepdim=True)
             gin = torch.cat([out, blend, exp_cost, spread.mean(1, keepdim=True), cover, plain_diff], 1)
             gate = torch.sigmoid(self.gate_gain * self.gate(gin))
             out = gate * out + (1 - gate) * blend
         if self.residual is not None:
             out = out + self.residual(torch.cat([out, spread, cover], 1))
-        return (out, gate) if return_gate else out
+        return Decoded(out, gate, confidence_map(p, exp_cost, spread.mean(1, keepdim=True), plain_diff, gate))
+
+
+@dataclass
+class Decoded:
+    """What the sweep decoder computes for a batch: colour (B, 3, h, w), gate (B, 1, h, w) (the weight of
+    the depth-resolved colour against the fallback) and confidence (B, 1, h, w) in [0, 1]."""
+
+    colour: torch.Tensor
+    gate: torch.Tensor
+    confidence: torch.Tensor
+
+
+AGREEMENT_SCALE = 0.1  # a mean absolute colour difference (0..1) at which agreement falls to 1/e
+
+
+def confidence_map(p: torch.Tensor, exp_cost: torch.Tensor, spread: torch.Tensor, plain_diff: torch.Tensor,
+                   gate: torch.Tensor) -> torch.Tensor:
+    """Per-pixel confidence in [0, 1]. Where the depth-resolved colour is used (gate g): the depth's
+    certainty times the sources' agreement at that depth, exp(-expected matching cost / AGREEMENT_SCALE);
+    the certainty is the peakedness of the depth distribution (1 - entropy / log D), raised towards 1
+    where the plausible depths give the same colour anyway (small ``spread``). Where the fallback is used
+    (1 - g): the pair's agreement after alignment. p (B, 1, D, h, w); the others (B, 1, h, w)."""
+    d = p.shape[2]
+    entropy = -(p * p.clamp(min=1e-12).log()).sum(2)
+    peak = (1 - entropy / math.log(d)).clamp(0, 1) if d > 1 else torch.ones_like(entropy)
+    certain = peak + (1 - peak) * torch.exp(-spread / AGREEMENT_SCALE)
+    sweep = certain * torch.exp(-exp_cost / AGREEMENT_SCALE)
+    fallback = torch.exp(-plain_diff / AGREEMENT_SCALE)
+    return (gate * sweep + (1 - gate) * fallback).clamp(0, 1)
+
+
+def match_cost(c: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Photo-consistency per voxel: the mean over source pairs of their mean absolute colour difference
+    where both see the voxel, 1 (mismatch) where one does not. c (B, n, 3, D, h, w); v (B, n, 1, D, h, w)
+    -> (B, 1, D, h, w)."""
+    n = c.shape[1]
+    total = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            both = v[:, i] * v[:, j]
+            total = total + (c[:, i] - c[:, j]).abs().mean(1, keepdim=True) * both + (1 - both)
+    return total / (n * (n - 1) // 2)
 
 
 DECODERS = {"sweep": SweepDecoder, "fc": FCDecoder}  # name -> class (each has ``reads_sources``)
@@ -251,9 +351,10 @@ def _volume(sources: "Sources", queries: "Queries", b: int, crop: "Crop") -> tor
 
 
 def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32), windows=(5,),
-                  extra_layers: int = 0, gate: bool = True, gate_init: float = 0.0) -> nn.Module:
+                  extra_layers: int = 0, gate: bool = True, gate_init: float = 0.0, n_sources: int = 2) -> nn.Module:
     if name == "sweep":
-        return SweepDecoder(channels, windows=windows, extra_layers=extra_layers, gate=gate, gate_init=gate_init)
+        return SweepDecoder(channels, windows=windows, extra_layers=extra_layers, gate=gate, gate_init=gate_init,
+                            n_sources=n_sources)
     if name == "fc":
         return FCDecoder(fc_hw)
     raise ValueError(f"unknown decoder {name!r}; choose one of {', '.join(DECODERS)}")

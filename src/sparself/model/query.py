@@ -3,7 +3,8 @@
 - :class:`Sources`: the source views of a scene as tensors (images, intrinsics, world-to-camera, pose
   vectors, sequence positions), sorted by frame index; built once from a Scene (:meth:`Sources.from_scene`).
 - :class:`Queries`: the views to render (intrinsics, world-to-camera, pose vectors, sequence positions),
-  each with its *source set* (indices into the sources the decoder reads, any number) and optionally
+  each with its *source set* (indices into the sources the decoder reads, any number: the two bracketing ones, then
+  the nearest others by camera centre) and optionally
   those sources aligned to it by optical flow. Training queries are the sources themselves, each left
   out of its own sequence and source set (:func:`leave_one_out`); synthesis queries are novel poses
   (:func:`novel_queries`).
@@ -38,6 +39,24 @@ def bracket(positions: np.ndarray, q: float, exclude: int = -1) -> tuple[int, in
     if before and after:
         return before[-1], after[0]
     return (after[0], after[1]) if not before else (before[-1], before[-2])
+
+
+def source_set(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2,
+               exclude: int = -1) -> tuple[int, ...]:
+    """A query's k sources: its two bracketing ones (:func:`bracket`) first, then the k - 2 others whose
+    camera centres are nearest to the query's (never ``exclude``, the target). centres (S, 3)."""
+    pair = bracket(positions, q, exclude)
+    if k <= 2:
+        return pair
+    dist = np.linalg.norm(np.asarray(centres, np.float64) - np.asarray(q_centre, np.float64), axis=1)
+    rest = [int(i) for i in np.argsort(dist, kind="stable") if int(i) != exclude and int(i) not in pair]
+    return tuple(pair) + tuple(rest[:k - 2])
+
+
+def camera_centres(w2c: torch.Tensor) -> np.ndarray:
+    """World positions of cameras from their world-to-camera matrices (T, 4, 4). -> (T, 3)."""
+    m = w2c.detach().double().cpu()
+    return (-(m[:, :3, :3].transpose(1, 2) @ m[:, :3, 3:4])[..., 0]).numpy()
 
 
 def bracket_fraction(positions: np.ndarray, pair: tuple[int, int], q: float) -> float:
@@ -157,30 +176,32 @@ class Queries:
         return Kc
 
 
-def leave_one_out(sources: Sources, hw: tuple[int, int] | None = None) -> Queries:
+def leave_one_out(sources: Sources, hw: tuple[int, int] | None = None, k: int = 2) -> Queries:
     """Every source as a query, predicted from the others: its own step is the query step in its sequence,
-    and its source set is its two bracketing sources (never itself). hw: output size (default: the
+    and its source set is its k sources (:func:`source_set`; never itself). hw: output size (default: the
     sources')."""
-    pos = sources.positions
+    pos, centres = sources.positions, camera_centres(sources.w2c)
+    sets = [source_set(pos, centres, float(pos[t]), centres[t], k, exclude=t) for t in range(len(pos))]
     return Queries(K=sources.K, w2c=sources.w2c, vectors=sources.vectors, positions=pos,
-                   n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device),
-                   sets=[bracket(pos, float(pos[t]), exclude=t) for t in range(len(pos))], hw=hw or sources.hw)
+                   n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device), sets=sets,
+                   hw=hw or sources.hw)
 
 
 def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.ndarray, index,
-                  hw: tuple[int, int]) -> Queries:
+                  hw: tuple[int, int], k: int = 2) -> Queries:
     """Queries at new poses with fractional frame indices ``index`` among the sources' indices; each
-    query step sits after every source at or before it, and its source set is its two bracketing sources.
-    K (T, 3, 3), w2c (T, 4, 4), vectors (T, 7) arrays."""
+    query step sits after every source at or before it, and its source set is its k sources
+    (:func:`source_set`). K (T, 3, 3), w2c (T, 4, 4), vectors (T, 7) arrays."""
     if len(sources) < 2:
         raise InputError("need at least 2 source frames to synthesize")
     dev, src_pos = sources.device, sources.positions
     q_pos = index_positions(sources.index, index)
-    return Queries(K=torch.tensor(K, dtype=torch.float32, device=dev),
-                   w2c=torch.tensor(w2c, dtype=torch.float32, device=dev),
+    w2c_t = torch.tensor(w2c, dtype=torch.float32, device=dev)
+    centres, q_centres = camera_centres(sources.w2c), camera_centres(w2c_t)
+    return Queries(K=torch.tensor(K, dtype=torch.float32, device=dev), w2c=w2c_t,
                    vectors=torch.from_numpy(vectors).to(dev), positions=q_pos,
                    n_before=torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev),
-                   sets=[bracket(src_pos, float(q)) for q in q_pos], hw=hw)
+                   sets=[source_set(src_pos, centres, float(q), c, k) for q, c in zip(q_pos, q_centres)], hw=hw)
 
 
 def flow_aligned(sources: Sources, queries: Queries) -> Queries:
@@ -213,3 +234,9 @@ def render(model: CNNLSTM, sources: Sources, queries: Queries, crops: list[Crop]
     if crops is not None:
         queries = queries.cropped(crops)
     return model.decoder(sources, queries, contexts(model, sources, queries))
+
+
+def render_with_confidence(model: CNNLSTM, sources: Sources, queries: Queries) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`render` of whole images plus each pixel's confidence in [0, 1] (the decoder's
+    ``with_confidence``). -> ((T, 3, h, w), (T, 1, h, w))."""
+    return model.decoder.with_confidence(sources, queries, contexts(model, sources, queries))
