@@ -42,6 +42,7 @@ def test_no_module_imports_a_private_name_of_another_module():
 def test_every_decoder_takes_sources_queries_and_context():
     for cls in DECODERS.values():
         assert list(inspect.signature(cls.forward).parameters) == ["self", "sources", "queries", "ctx"], cls
+        assert list(inspect.signature(cls.with_confidence).parameters) == ["self", "sources", "queries", "ctx"], cls
         assert isinstance(cls.reads_sources, bool) and callable(cls.native_hw)
 
 

@@ -213,3 +213,22 @@ def test_configs_saved_before_the_fallback_option_load_as_the_plain_blend(tiny_c
     assert TrainConfig.from_json(tiny_cfg().to_json()).fallback == "flow" == TrainConfig().fallback
     with pytest.raises(ConfigError, match="fallback must be blend or flow"):
         tiny_cfg(fallback="median")
+
+
+def test_four_sources_train_reload_and_synthesize_with_confidence(tmp_path, tiny_cfg):
+    """--sources 4: trains, reloads from its folder with the same decoder, and synthesizes a view with
+    its confidence map; sources < 2 is refused."""
+    from sparself.synthesize import synthesize_with_confidence
+
+    scene = plane_scene()
+    run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, sources=4), progress=False)
+    assert run.model.decoder.attend is not None
+    again = load_run(tmp_path / "run")
+    assert again.cfg.sources == 4
+    target = dataclasses.replace(scene.frames[3], index=3.5, image=None, path=None)
+    a = synthesize_with_confidence(run, scene, [target])
+    b = synthesize_with_confidence(again, scene, [target])
+    assert a.images.shape == (1, SH, SW, 3) and a.confidence.shape == (1, SH, SW)
+    assert np.array_equal(a.images, b.images) and 0 <= a.confidence.min() and a.confidence.max() <= 1
+    with pytest.raises(ConfigError, match="sources"):
+        TrainConfig(sources=1)

@@ -10,6 +10,11 @@
   :class:`sparself.train.TrainConfig`) or as they are (``"blend"``), so that where no depth is
   photo-consistent (wide-baseline rings, dark backgrounds) the decoder can do what flow interpolation
   does. It is fully convolutional, so it trains on crops and runs at any resolution.
+  With more than two sources per query (``TrainConfig.sources``), the matching cost is the mean over
+  source pairs and the colour a per-voxel softmax over the visible sources, weighted by a small head on
+  the context-conditioned (FiLM) features and each source's deviation from the others (the pair keeps
+  its learned blend weight; further sources start down-weighted). Every decoder also returns a
+  per-pixel confidence (:meth:`SweepDecoder.with_confidence`, :func:`confidence_map`).
 
 Measured (benchmarks/synthesis_quality.py, seed 0, 100 epochs, 1 thread), PSNR dB / SSIM on held-out
 real frames: llff_bird, 24 real midpoints at 136x240: sweep with flow fallback 24.56 / 0.844, with the
