@@ -239,7 +239,7 @@ class SweepDecoder(nn.Module):
     def _depth_and_colour(self, c, v, ctx):
         """Per-voxel depth probabilities and source-weighted colour. c (B, n, 3, D, h, w), v (B, n, 1, D, h, w)
         -> p (B, 1, D, h, w), colour (B, 3, D, h, w), cost (B, D, h, w)."""
-        diff = match_cost(c, v)
+        diff = match_cost(c[:, :2], v[:, :2])  # the pair's (all pairs measured worse: see the README)
         b, _, d, h, w = diff.shape
         flat = diff.permute(0, 2, 1, 3, 4).reshape(b * d, 1, h, w)
         boxes = [F.avg_pool2d(flat, k, 1, k // 2, count_include_pad=False).reshape(b, d, 1, h, w)
