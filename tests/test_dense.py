@@ -397,7 +397,7 @@ def _check_masks(folder: Path, sj: dict) -> None:
         assert fr["mask_path"] == f"masks/{Path(name).stem}.png"
         for sub in ("", "_2", "_4", "_8"):
             img = Image.open(folder / f"images{sub}" / name)
-            mask = Image.open(folder / Path(fr["mask_path"]).parent.with_name(f"masks{sub}") / Path(fr["mask_path"]).name)
+            mask = Image.open(folder / f"masks{sub}" / Path(fr["mask_path"]).name)
             assert mask.mode == "L" and mask.size == img.size
         m = np.asarray(Image.open(folder / fr["mask_path"]))
         assert (m == 255).all() if not synthetic[name] else (m.min() < 255 and m.max() > 0)
