@@ -490,3 +490,15 @@ def test_ctrl_c_in_densify_says_nothing_was_written(run6, tmp_path, capsys, monk
     lines = [ln for ln in err.splitlines() if ln.startswith("sparself densify:")]
     assert lines == [f"sparself densify: interrupted; nothing was written to {tmp_path / 'd'}; run the command again"]
     assert listing(tmp_path) == []  # no output, no hidden temporary folder
+
+
+def test_output_cut_off_by_a_closed_pipe_is_no_traceback(tmp_path):
+    """``sparself info SCENE | true``: the reader exits before sparself writes; no BrokenPipeError traceback."""
+    import subprocess
+    import sys
+
+    scene = _colmap_text(tmp_path / "s")
+    cmd = f"'{sys.executable}' -m sparself.cli info '{scene}' | true; echo \"status ${{PIPESTATUS[0]}}\" >&2"
+    proc = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] in ("status 141", "status 0"), proc.stderr

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -151,12 +152,22 @@ def main(argv: list[str] | None = None) -> int:
         by = f" by {signal.Signals(signum).name}" if signum != signal.SIGINT else ""
         print(f"sparself {args.command}: interrupted{by}" + (f"; {e}" if str(e) else ""), file=sys.stderr)
         return 128 + int(signum)
+    except BrokenPipeError:  # `sparself info SCENE | head`: the reader has gone, which is no error of ours
+        _drop_stdout()
+        return 141  # 128 + SIGPIPE, what a shell reports for a command cut off by its pipe
     finally:
         for rec in repeats.rest():
             handler.handle(rec)
         pkg.removeHandler(handler)
         pkg.setLevel(old_level)
         pkg.propagate = old_propagate
+
+
+def _drop_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush does not fail on the closed pipe again."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
 
 
 # ---- commands ------------------------------------------------------------------------------------
