@@ -80,3 +80,15 @@ def test_registry():
     assert get_reconstructor("mpi") is RECONSTRUCTORS["mpi"]
     with pytest.raises(ConfigError, match="known: .*mpi"):
         get_reconstructor("nope")
+
+
+def test_sweep_neighbours_keep_a_minimum_baseline():
+    """min_baseline in units of D z_min / f (here 17 * 1 / 80 = 0.2125): closer cameras only fill up."""
+    sc = plane_scene(xs=(0.0, 0.1, 0.2, 0.3, 0.4))
+    assert fit(sc, MpiConfig(num_planes=NUM_PLANES))._neighbourhood(0) == [0, 1, 2, 3, 4]
+    spaced = fit(sc, MpiConfig(num_planes=NUM_PLANES, min_baseline=1.0, neighbors=2))
+    assert spaced._neighbourhood(0) == [0, 3, 4]
+    assert fit(sc, MpiConfig(num_planes=NUM_PLANES, min_baseline=1.0))._neighbourhood(0) == [0, 3, 4, 2, 1]
+    assert spaced._neighbourhood(2) == [2, 4, 0]  # none is far enough: the farthest of the close ones
+    with pytest.raises(ValueError):
+        MpiConfig(min_baseline=-1)

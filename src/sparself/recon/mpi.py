@@ -42,7 +42,11 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class MpiConfig:
-    """num_planes: D; neighbors: views besides the reference in each MPI's plane sweep; render_k: MPIs
+    """num_planes: D; neighbors: views besides the reference in each MPI's plane sweep; min_baseline: sweep
+    neighbours are the nearest cameras at least this far from the reference, in units of LLFF's sampling
+    limit D z_min / f (the baseline over which the nearest plane moves D pixels), so that denser captures
+    add MPIs without shrinking each sweep's baseline (0: the plain nearest cameras, the default: on llff_bird at
+    128 px every floor tried scored lower at every density, see benchmarks/oracle_check.py); render_k: MPIs
     blended per rendered view; box: cost box-filter side (odd); temperature: soft-argmin temperature on
     the normalised cost; gamma: blend falloff in 1 / scene units (None: f / (D z_min)); cache_size: MPIs
     kept in memory (each is D x 4 x H x W float32); max_side: build MPIs at most this large (None: the
@@ -50,6 +54,7 @@ class MpiConfig:
 
     num_planes: int = 32
     neighbors: int = 4
+    min_baseline: float = 0.0
     render_k: int = 5
     box: int = 3
     temperature: float = 0.1
@@ -60,6 +65,8 @@ class MpiConfig:
     def __post_init__(self) -> None:
         if self.num_planes < 2 or self.render_k < 1 or self.neighbors < 1 or self.box < 1 or self.box % 2 == 0:
             raise ValueError(f"invalid MpiConfig {self}")
+        if self.min_baseline < 0:
+            raise ValueError("MpiConfig.min_baseline must be >= 0")
         if self.temperature <= 0:
             raise ValueError("MpiConfig.temperature must be > 0")
 
@@ -129,10 +136,15 @@ class MpiRenderer:
         self._cache: OrderedDict[int, Mpi] = OrderedDict()
 
     def _neighbourhood(self, r: int) -> list[int]:
+        """r and its sweep neighbours: the nearest cameras at least the minimum baseline away; when
+        too few are, the farthest of the closer ones fill up (LLFF's rule, not the plain nearest)."""
         d = np.linalg.norm(self.centers - self.centers[r], axis=1)
         d[r] = np.inf
         order = [int(i) for i in np.argsort(d, kind="stable") if np.isfinite(d[i])]
-        return [r] + order[: self.cfg.neighbors]
+        floor = self.cfg.min_baseline * self.cfg.num_planes * self.near / self.scene.camera(r).fx
+        wide = [i for i in order if d[i] >= floor]
+        close = [i for i in order if d[i] < floor][::-1]
+        return [r] + (wide + close)[: self.cfg.neighbors]
 
     def mpi(self, r: int) -> Mpi:
         """The MPI of source view r (built on first use)."""
