@@ -2,7 +2,8 @@
 
 ``RECONSTRUCTORS`` maps a name to its ``fit``. Entries are imported only when used, so an optional
 backend (gsplat needs CUDA) costs nothing until asked for. To add one, write ``sparself/recon/<name>.py``
-with ``fit(scene, **cfg) -> Renderer`` and add ``"<name>": _lazy("<name>")`` below.
+with ``fit(scene, **cfg) -> Renderer`` and add ``"<name>": _lazy("<name>")`` below. "3dgs" picks gsplat
+(CUDA) when it can run, else the CPU splatting of ``splat.py``.
 """
 
 from __future__ import annotations
@@ -38,10 +39,20 @@ def _lazy(module: str, attr: str = "fit") -> Callable[..., Renderer]:
     return fit
 
 
+def fit_3dgs(scene: Scene, **cfg) -> Renderer:
+    """3D Gaussian splatting: gsplat on CUDA when it can run here, else the plain-torch CPU path
+    (``recon.splat``). The renderer's ``backend`` says which ran."""
+    from .gsplat import available
+
+    return _lazy("gsplat" if available()[0] else "splat")(scene, **cfg)
+
+
 RECONSTRUCTORS: dict[str, Callable[..., Renderer]] = {
     "mpi": _lazy("mpi"),
     "nerf": _lazy("nerf"),
     "gsplat": _lazy("gsplat"),
+    "splat": _lazy("splat"),
+    "3dgs": fit_3dgs,
 }
 
 

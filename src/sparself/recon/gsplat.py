@@ -69,6 +69,8 @@ def available() -> tuple[bool, str]:
 class GsplatRenderer:
     """Fitted Gaussians. ``render(pose, camera) -> (H, W, 3) float32 in [0, 1]``."""
 
+    backend = "cuda: gsplat.rasterization"
+
     def __init__(self, params, sh_degree: int, background):
         self.params = params
         self.sh_degree = sh_degree
