@@ -6,8 +6,8 @@
 
 The held-out protocol of ``sparself evaluate``: every 8th interior frame is held out and never used
 (not even its pose for fitting); the N-view capture is the evaluate split's 25 evenly spaced inputs plus
-real frames spread evenly over the remaining non-held-out ones, so each capture contains the previous
-one (25 ⊂ 35 ⊂ 50 ⊂ 90). Each reconstructor is fitted on each capture and scored (PSNR) on every
+real frames spread evenly over the remaining non-held-out ones, each capture the previous one plus
+more frames (25 ⊂ 35 ⊂ 50 ⊂ 90). Each reconstructor is fitted on each capture and scored (PSNR) on every
 held-out frame. Prints one markdown table and says, per reconstructor, whether PSNR rose at every step.
 """
 
@@ -34,12 +34,12 @@ def nested_captures(n_frames: int, views: list[int], inputs: int = 25, every: in
     """(held-out frames, {N: frame indices}) with each capture a superset of the smaller ones."""
     held = holdout_indices(n_frames, every)
     rest = [i for i in range(n_frames) if i not in set(held)]
-    base = evenly_spaced(rest, inputs)
-    others = [i for i in rest if i not in set(base)]
+    cur = evenly_spaced(rest, min(inputs, min(views)))
     caps = {}
     for n in sorted(views):
-        extra = evenly_spaced(others, n - len(base)) if n > len(base) else []
-        caps[n] = sorted(set(base[:n]) | set(extra))
+        others = [i for i in rest if i not in set(cur)]
+        cur = sorted(set(cur) | set(evenly_spaced(others, n - len(cur)) if n > len(cur) else []))
+        caps[n] = cur
     return held, caps
 
 

@@ -87,7 +87,7 @@ class EvalConfig:
     seeds: int = option(3, "network seeds, reported as mean ± std")
     first_seed: int = option(0, "the first network seed: seeds are first_seed .. first_seed + seeds - 1 (`sparself "
                                 "batch evaluate` runs one seed per task)")
-    reconstructors: tuple[str, ...] = option(("mpi", "nerf"), "reconstructors, comma-separated: mpi,nerf,gsplat",
+    reconstructors: tuple[str, ...] = option(("mpi", "nerf"), "reconstructors, comma-separated: mpi,nerf,gsplat,3dgs",
                                              flag="--recon")
     baselines: tuple[str, ...] = option(("nearest", "blend", "flow", "planesweep"),
                                         "view-synthesis baselines scored on held-out poses")
@@ -263,7 +263,8 @@ def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
     the evaluation's settings applied."""
     fit = get_reconstructor(name)
     kw = {"nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
-          "gsplat": dict(seed=cfg.recon_seed, progress=cfg.progress)}.get(name, {})
+          "gsplat": dict(seed=cfg.recon_seed, progress=cfg.progress),
+          "3dgs": dict(seed=cfg.recon_seed, progress=cfg.progress)}.get(name, {})
     return lambda sc: fit(sc, **kw)
 
 
@@ -487,14 +488,22 @@ def _densified_scenes(ev: _SceneEval) -> list[tuple[str, int | None, Scene]]:
 
 
 def oracle_share(entry: dict) -> None:
-    """Set a densification entry's share of the oracle's PSNR gain (and the gain) from its summaries."""
-    if "oracle" in entry and NETWORK in entry:
-        b = entry["base"]["summary"]["psnr"]["mean"]
-        o = entry["oracle"]["summary"]["psnr"]["mean"]
+    """The instrument check, then the share, of one reconstructor on one capture: more real photos must
+    not make it worse.
+
+    Sets ``instrument`` ("ok", or "failed: ..." when N + real photos (the oracle) does not beat N alone),
+    ``oracle_gain_db``, and ``oracle_share`` only when the instrument holds and the gain is measurable."""
+    if "oracle" not in entry or "base" not in entry:
+        return
+    b = entry["base"]["summary"]["psnr"]["mean"]
+    o = entry["oracle"]["summary"]["psnr"]["mean"]
+    entry["oracle_gain_db"] = float(o - b)
+    entry["instrument"] = "ok" if o > b else (
+        f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
+    if NETWORK in entry:
         s = entry[NETWORK]["summary"]["psnr"]["mean"]
         # a share of a gain the oracle does not show is noise, not a fraction
         entry["oracle_share"] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
-        entry["oracle_gain_db"] = float(o - b)
 
 
 def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
@@ -503,6 +512,7 @@ def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], ent
     net = SeededSets()
     for key, seed, sc in tqdm(_densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False):
         renderer = fit(sc)
+        entry.setdefault("backend", getattr(renderer, "backend", None))
         imgs = np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
         label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
         scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))

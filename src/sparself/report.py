@@ -325,6 +325,8 @@ def _densification_tables(doc: _Doc, c: _Ctx) -> None:
 
 def _share_cell(d: dict) -> str:
     sh, gain = finite(d.get("oracle_share")), finite(d.get("oracle_gain_db"))
+    if str(d.get("instrument", "ok")).startswith("failed"):  # more real photos made it worse
+        return f"instrument failed (oracle {gain:+.2f} dB vs N)"
     return (f"{100 * sh:.0f}%" if sh is not None else
             (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–"))
 
@@ -334,6 +336,10 @@ def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
     names = {"base": "N only", NETWORK: "N + sparself", "oracle": "N + real (oracle)"}
     for r in c.recons:
         doc.h(3, f"{r}: sparself vs baselines vs oracle (densification)")
+        backends = sorted({str(s["densification"][r]["backend"]) for s in c.ok
+                           if s["densification"].get(r, {}).get("backend")})
+        if backends:
+            doc.p(f"{r} ran on: {', '.join(backends)}.")
         keys = []
         for s in c.ok:
             for k in s["densification"].get(r, {}):

@@ -1,0 +1,59 @@
+"""The instrument check: a reconstruction that more real photos make worse cannot measure densification."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+from sparself.evaluate import NETWORK, oracle_share
+from sparself.report import write_report
+
+
+def _entry(base: float, net: float, oracle: float) -> dict:
+    s = lambda v: {"summary": {"psnr": {"mean": v, "std": 0.0}, "ssim": {"mean": None}, "lpips": {"mean": None}}}  # noqa: E731
+    return {"status": "ok", "base": {"views": 25, **s(base)}, NETWORK: {"views": 35, **s(net)},
+            "oracle": {"views": 35, **s(oracle)}}
+
+
+def test_share_only_when_the_oracle_beats_n():
+    ok = _entry(20.0, 21.0, 22.0)
+    oracle_share(ok)
+    assert ok["instrument"] == "ok" and ok["oracle_share"] == 0.5 and ok["oracle_gain_db"] == 2.0
+    bad = _entry(23.42, 23.5, 22.73)  # a capture where more real photos scored lower
+    oracle_share(bad)
+    assert bad["instrument"].startswith("failed") and "22.73" in bad["instrument"]
+    assert bad["oracle_share"] is None
+    no_oracle = _entry(20.0, 21.0, 0.0)
+    del no_oracle["oracle"]
+    oracle_share(no_oracle)
+    assert "instrument" not in no_oracle and "oracle_share" not in no_oracle
+
+
+def test_report_says_the_instrument_failed_instead_of_a_share(tmp_path):
+    good, bad = _entry(20.0, 21.0, 22.0), _entry(23.42, 23.5, 22.73)
+    for e in (good, bad):
+        oracle_share(e)
+    bad["backend"] = "cpu: test"
+    scenes = [{"name": n, "status": "ok", "notes": [], "timings": {}, "view_synthesis": {}, "midpoints": {},
+               "protocol": {"rule": "dense", "held_out": [], "scored": [], "inputs": []},
+               "densification": {"3dgs": e}} for n, e in (("good", good), ("bad", bad))]
+    write_report({"settings": {"lpips_status": "unavailable"}, "not_run": {}, "scenes": scenes}, tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    good_rows = [line for line in md.splitlines() if line.startswith("| good (25→35)")]
+    bad_rows = [line for line in md.splitlines() if line.startswith("| bad (25→35)")]
+    assert any(line.rstrip().endswith("| 50% |") for line in good_rows)
+    assert any("instrument failed (oracle -0.69 dB vs N)" in line for line in bad_rows)
+    assert not any("%" in line for line in bad_rows)
+    assert "3dgs ran on: cpu: test." in md
+
+
+def test_oracle_benchmark_captures_are_nested_and_never_use_held_out_frames():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "oracle_check.py"
+    spec = importlib.util.spec_from_file_location("oracle_check", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    held, caps = mod.nested_captures(184, [25, 35, 50, 90])
+    assert held == list(range(8, 183, 8))
+    assert [len(caps[n]) for n in (25, 35, 50, 90)] == [25, 35, 50, 90]
+    assert set(caps[25]) <= set(caps[35]) <= set(caps[50]) <= set(caps[90])
+    assert not set(caps[90]) & set(held)
