@@ -171,3 +171,16 @@ def test_registry_3dgs_picks_the_cpu_path_without_cuda():
     assert r.backend.startswith("cpu")
     with pytest.raises(ValueError):
         SplatConfig(sh_degree=2)
+
+
+def test_gpu_check_says_what_it_needs_and_exits_0_without_cuda():
+    import importlib.util
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if torch.cuda.is_available() and importlib.util.find_spec("gsplat") is not None:
+        pytest.skip("CUDA and gsplat are here: the device check would run")
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu_splat_check.py"
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.startswith("needs CUDA + gsplat"), out.stdout + out.stderr
