@@ -17,6 +17,7 @@ Rays follow COLMAP's pixel convention: pixel (row i, column j) has its centre at
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 from dataclasses import dataclass, field
@@ -227,12 +228,19 @@ def fit(scene: Scene, config: NerfConfig | None = None, **overrides) -> NerfRend
     Deterministic on CPU for a given ``config.seed``.
     """
     scene, cfg = prepare_fit(scene, NerfConfig, config, overrides, "NeRF")
-    prev_threads = torch.get_num_threads()
-    torch.set_num_threads(max(1, min(cfg.threads, prev_threads)))
-    try:
+    with at_most_threads(cfg.threads):
         return _fit(scene, cfg)
+
+
+@contextlib.contextmanager
+def at_most_threads(n: int):
+    """torch uses at most n threads (and at least 1) inside; the previous count is restored after."""
+    prev = torch.get_num_threads()
+    torch.set_num_threads(max(1, min(n, prev)))
+    try:
+        yield
     finally:
-        torch.set_num_threads(prev_threads)
+        torch.set_num_threads(prev)
 
 
 def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:

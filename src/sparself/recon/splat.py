@@ -384,15 +384,11 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
     config: a :class:`SplatConfig`; keyword overrides replace its fields. Deterministic for ``config.seed``.
     """
-    from .nerf import prepare_fit
+    from .nerf import at_most_threads, prepare_fit
 
     scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, "3dgs")
-    prev = torch.get_num_threads()
-    torch.set_num_threads(max(1, min(cfg.threads, prev)))
-    try:
+    with at_most_threads(cfg.threads):
         return _fit(scene, cfg)
-    finally:
-        torch.set_num_threads(prev)
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
