@@ -3,6 +3,7 @@
     python benchmarks/oracle_check.py                          # llff_bird, 128 px, MPI, 25/35/50/90 views
     python benchmarks/oracle_check.py --recon mpi,3dgs --views 25,35
     python benchmarks/oracle_check.py --mpi-min-baseline 1     # LLFF's rule: sweep neighbours >= D z_min / f away
+    python benchmarks/oracle_check.py --densify flow [--mpi-real-sweep]   # evaluate's N / N+flow / oracle
 
 The held-out protocol of ``sparself evaluate``: every 8th interior frame is held out and never used
 (not even its pose for fitting); the N-view capture is the evaluate split's 25 evenly spaced inputs plus
@@ -43,6 +44,25 @@ def nested_captures(n_frames: int, views: list[int], inputs: int = 25, every: in
     return held, caps
 
 
+def densify_check(scene, rname: str, kw: dict, size: int, synth: str) -> dict:
+    """``sparself evaluate``'s densification on one capture with the ``synth`` baseline in the network's
+    place (cheap, no training): {"N", "N+synth", "oracle", "instrument", "share"} for one reconstructor."""
+    from sparself.baselines import BASELINES
+    from sparself.evaluate import NETWORK, EvalConfig, evaluate_scene
+
+    fn = BASELINES[synth]
+    cfg = EvalConfig(size=size, seeds=1, lpips=False, densify_baselines=(), examples=0, progress=False)
+    fit = get_reconstructor(rname)
+    res = evaluate_scene(scene, cfg, None, network=lambda inputs, seed: fn, baselines={},
+                         reconstructors={rname: lambda sc: fit(sc, **kw)})
+    d = res["densification"][rname]
+    if d.get("status") != "ok":
+        raise RuntimeError(d.get("error"))
+    m = lambda k: d[k]["summary"]["psnr"]["mean"]  # noqa: E731
+    return {"N": m("base"), "N+synth": m(NETWORK), "oracle": m("oracle"), "instrument": d.get("instrument"),
+            "share": d.get("oracle_share")}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default=str(ROOT.parent / "shared" / "data" / "llff_bird"))
@@ -52,12 +72,24 @@ def main() -> int:
     ap.add_argument("--mpi-min-baseline", type=float, default=None,
                     help="MpiConfig.min_baseline (sweep neighbours' distance floor, units of D z_min / f)")
     ap.add_argument("--max-eval", type=int, default=None, help="score only this many held-out frames")
+    ap.add_argument("--densify", default=None, metavar="BASELINE",
+                    help="instead: evaluate's N / N + BASELINE views / oracle (N + real) for each reconstructor")
+    ap.add_argument("--mpi-real-sweep", action="store_true", help="MpiConfig.sweep_synthetic = False")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     import torch
 
     torch.set_num_threads(args.threads)
     scene = read_scene(Path(args.scene))
+    if args.densify:
+        kw = {"sweep_synthetic": False} if args.mpi_real_sweep else {}
+        for rname in [r.strip() for r in args.recon.split(",") if r.strip()]:
+            t0 = time.perf_counter()
+            r = densify_check(scene, rname, kw if rname == "mpi" else {}, args.size, args.densify)
+            print(f"{Path(args.scene).name} {rname}{' real-only sweep' if kw else ''}: N {r['N']:.2f}, "
+                  f"N + {args.densify} {r['N+synth']:.2f}, oracle {r['oracle']:.2f} dB; instrument "
+                  f"{r['instrument']}; share {r['share']}; {time.perf_counter() - t0:.0f} s", flush=True)
+        return 0
     order = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)
     full = scene.subset(order).resized(args.size)
     views = [int(v) for v in args.views.split(",")]

@@ -92,3 +92,14 @@ def test_sweep_neighbours_keep_a_minimum_baseline():
     assert spaced._neighbourhood(2) == [2, 4, 0]  # none is far enough: the farthest of the close ones
     with pytest.raises(ValueError):
         MpiConfig(min_baseline=-1)
+
+
+def test_sweep_can_skip_synthetic_frames():
+    from dataclasses import replace
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2, 0.3, 0.4))
+    sc = replace(sc, frames=[replace(f, synthetic=i in (1, 3)) for i, f in enumerate(sc.frames)])
+    assert sorted(fit(sc, MpiConfig(num_planes=NUM_PLANES, neighbors=2))._neighbourhood(2)) == [1, 2, 3]
+    real_only = fit(sc, MpiConfig(num_planes=NUM_PLANES, neighbors=2, sweep_synthetic=False))
+    assert sorted(real_only._neighbourhood(2)) == [0, 2, 4]
+    assert sorted(real_only._neighbourhood(1)) == [0, 1, 2]  # a synthetic view still gets its MPI, from real ones

@@ -46,7 +46,9 @@ class MpiConfig:
     neighbours are the nearest cameras at least this far from the reference, in units of LLFF's sampling
     limit D z_min / f (the baseline over which the nearest plane moves D pixels), so that denser captures
     add MPIs without shrinking each sweep's baseline (0: the plain nearest cameras, the default: on llff_bird at
-    128 px every floor tried scored lower at every density, see benchmarks/oracle_check.py); render_k: MPIs
+    128 px every floor tried scored lower at every density, see benchmarks/oracle_check.py); sweep_synthetic:
+    False draws sweep neighbours from the non-synthetic frames only, so added (synthesized) views add MPIs
+    close to the target without entering any other view's depth estimate; render_k: MPIs
     blended per rendered view; box: cost box-filter side (odd); temperature: soft-argmin temperature on
     the normalised cost; gamma: blend falloff in 1 / scene units (None: f / (D z_min)); cache_size: MPIs
     kept in memory (each is D x 4 x H x W float32); max_side: build MPIs at most this large (None: the
@@ -55,6 +57,7 @@ class MpiConfig:
     num_planes: int = 32
     neighbors: int = 4
     min_baseline: float = 0.0
+    sweep_synthetic: bool = True
     render_k: int = 5
     box: int = 3
     temperature: float = 0.1
@@ -140,6 +143,10 @@ class MpiRenderer:
         too few are, the farthest of the closer ones fill up (LLFF's rule, not the plain nearest)."""
         d = np.linalg.norm(self.centers - self.centers[r], axis=1)
         d[r] = np.inf
+        if not self.cfg.sweep_synthetic:
+            synthetic = np.array([f.synthetic for f in self.scene.frames])
+            if (~synthetic).sum() > 1:  # keep the plain rule when too few real frames are left
+                d[synthetic] = np.inf
         order = [int(i) for i in np.argsort(d, kind="stable") if np.isfinite(d[i])]
         floor = self.cfg.min_baseline * self.cfg.num_planes * self.near / self.scene.camera(r).fx
         wide = [i for i in order if d[i] >= floor]
