@@ -107,7 +107,7 @@ def _rasterize(gsplat, torch, params, poses, cameras, sh_degree, background, dev
     return renders, alphas, info
 
 
-def _init_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(P, 3) initial means and (P, 3) colours: the sparse points when known, else random in the
     depth-bounded frustum of the cameras (grey)."""
     if scene.points is not None and len(scene.points) >= 100:
@@ -172,7 +172,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
             strategy.step_pre_backward(params, optimizers, state, step, info)
         gt = images[i][None]
         l1 = (render - gt).abs().mean()
-        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - _ssim_torch(torch, render, gt))
+        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim_torch(torch, render, gt))
         loss.backward()
         if strategy is not None:
             strategy.step_post_backward(params, optimizers, state, step, info, packed=False)
@@ -187,7 +187,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
 
 def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
     """Gaussians at the SfM points (or sampled ones): means, log scales, rotations, opacities, SH colours."""
-    pts, cols = _init_points(scene, cfg, rng)
+    pts, cols = initial_points(scene, cfg, rng)
     means = torch.tensor(pts, device=dev)
     # initial scale: distance to the 3 nearest neighbours (log), as in the reference implementation
     with torch.no_grad():  # on up to 4096 sampled points, in chunks: a full cdist would not fit in memory
@@ -209,7 +209,7 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
     return params
 
 
-def _ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
+def ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
     """Mean SSIM of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
     import torch.nn.functional as F
 

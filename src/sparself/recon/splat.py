@@ -308,12 +308,12 @@ def _point_colors(scene: Scene, pts: np.ndarray, views: int = 8) -> np.ndarray:
 def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> Gaussians:
     """Gaussians at the SfM points (at most ``init_points``, coloured from the training views), else at
     random points in the cameras' depth-bounded frusta; isotropic, scale = mean distance to 3 neighbours."""
-    from .gsplat import _init_points
+    from .gsplat import initial_points
 
     if scene.points is not None and len(scene.points) >= 100:
         pts = np.asarray(scene.points, np.float64)
     else:
-        pts = _init_points(scene, cfg, rng)[0].astype(np.float64)
+        pts = initial_points(scene, cfg, rng)[0].astype(np.float64)
     if len(pts) > cfg.init_points:
         pts = pts[np.sort(rng.choice(len(pts), cfg.init_points, replace=False))]
     cols = _point_colors(scene, pts)
@@ -392,7 +392,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
-    from .gsplat import _ssim_torch
+    from .gsplat import ssim_torch
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -413,7 +413,7 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
         img, p = render_gaussians(g, scene.frames[i].pose, cam, bg, deg)
         p.means2d.retain_grad()
         l1 = (img - images[i]).abs().mean()
-        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - _ssim_torch(torch, img[None], images[i][None]))
+        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim_torch(torch, img[None], images[i][None]))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
