@@ -318,7 +318,8 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
         pts = pts[np.sort(rng.choice(len(pts), cfg.init_points, replace=False))]
     cols = _point_colors(scene, pts)
     means = torch.tensor(pts, dtype=torch.float32)
-    knn = torch.cdist(means, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
+    knn = torch.cat([torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
+                     for c in means.split(1024)])  # in chunks: a full distance matrix grows as N^2
     n = len(means)
     sh = torch.zeros(n, 4 if cfg.sh_degree else 1, 3)
     sh[:, 0] = (torch.from_numpy(cols) - 0.5) / SH_C0
