@@ -151,7 +151,7 @@ def test_tiny_fit_lowers_the_loss_and_raises_training_psnr():
     sc.points = np.stack([rng.uniform(-0.7, 0.9, 400), rng.uniform(-0.5, 0.5, 400), np.full(400, DEPTH)], 1)
     cam, pose = sc.cameras[1], sc.frames[1].pose
     cfg = SplatConfig(steps=60, init_points=300, densify_every=15, densify_from=0.2, densify_until=0.8,
-                      max_gaussians=600, progress=False, seed=3, lr_opacities=0.1)
+                      max_gaussians=600, progress=False, seed=3, lr_opacities=0.1, min_steps_per_view=0)
     before = fit(sc, cfg, steps=0).render(pose, cam)
     r = fit(sc, cfg)
     after = r.render(pose, cam)
@@ -167,8 +167,9 @@ def test_registry_3dgs_picks_the_cpu_path_without_cuda():
 
     if available()[0]:
         pytest.skip("gsplat and CUDA are available: 3dgs uses them")
-    r = RECONSTRUCTORS["3dgs"](plane_scene(xs=(0.0, 0.2)), steps=2, init_points=50, progress=False)
-    assert r.backend.startswith("cpu")
+    r = RECONSTRUCTORS["3dgs"](plane_scene(xs=(0.0, 0.2)), steps=2, init_points=50, progress=False,
+                               min_steps_per_view=3)
+    assert r.backend.startswith("cpu") and len(r.history) == 6  # at least 3 steps per view
     with pytest.raises(ValueError):
         SplatConfig(sh_degree=2)
 

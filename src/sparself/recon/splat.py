@@ -21,6 +21,7 @@ footprint is where its alpha can reach 1/255 (from its opacity), so culling by i
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -46,7 +47,9 @@ BACKEND = "cpu: sparself.recon.splat (plain torch)"
 class SplatConfig:
     """Settings of :func:`fit`. Defaults fit llff_bird's 25 views at 128 px in a few minutes on 2 cores.
 
-    steps: optimisation steps (one training view each); init_points: Gaussians to start from (SfM points
+    steps: optimisation steps (one training view each), at least ``min_steps_per_view`` x views so that a
+    denser capture is not fitted less per view (with a fixed count, 35 real views of llff_bird scored
+    below 25: 26.44 vs 26.67 dB); init_points: Gaussians to start from (SfM points
     subsampled, or random in the depth bounds); max_gaussians: densification stops adding beyond this;
     densify_from / densify_until / densify_every: clone/split schedule (fractions of ``steps`` for the
     first two); grad_threshold: mean screen-space gradient (NDC units, as the reference) that marks a
@@ -57,6 +60,7 @@ class SplatConfig:
     """
 
     steps: int = 1500
+    min_steps_per_view: int = 60
     init_points: int = 3000
     max_gaussians: int = 8000
     densify_from: float = 0.1
@@ -388,6 +392,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
     from .nerf import at_most_threads, prepare_fit
 
     scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, "3dgs")
+    cfg = dataclasses.replace(cfg, steps=max(cfg.steps, cfg.min_steps_per_view * len(scene)))
     with at_most_threads(cfg.threads):
         return _fit(scene, cfg)
 
