@@ -332,8 +332,8 @@ def _report(scene: Scene, names: list[str], recs: dict, best, check: PoseCheck, 
                        breaks=check.breaks, repair=repair, camera=cam_notes)
     scene.meta.update(format="sfm", unregistered=unregistered, sfm_report=report)
     log.log(logging.WARNING if unregistered or check.suspects or check.breaks else logging.INFO,
-            "sfm: %s (%d model(s); %.1f s)",
-            report.summary(), len(recs), sum(timings.values()))
+            "sfm: %s (%s; %.1f s)", report.summary(),
+            "one model" if len(recs) == 1 else f"the largest of {len(recs)} models", sum(timings.values()))
     for w in cam_notes:
         log.warning("sfm: %s", w)
     if len(registered) < 3:
