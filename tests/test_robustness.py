@@ -142,7 +142,7 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
     proc = subprocess.Popen(argv, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     t0 = time.monotonic()
     # wait until training writes into the temporary output (a hidden .out.tmp-* folder with a run log)
-    while proc.poll() is None and time.monotonic() - t0 < 60 and not list(res.glob(".out.tmp-*/run/train_log.csv")):
+    while proc.poll() is None and time.monotonic() - t0 < 300 and not list(res.glob(".out.tmp-*/run/train_log.csv")):
         time.sleep(0.01)
     assert proc.poll() is None, proc.communicate()[1]
     proc.send_signal(signal.SIGINT)
