@@ -22,15 +22,14 @@ if TYPE_CHECKING:
 def run_scene_mismatch(meta: "RunMeta", scene: Scene, holdout: tuple[int, ...] = ()) -> str | None:
     """How ``scene`` (minus ``holdout``) differs from the run's training views, or None if it does not.
     Reads no image."""
-    keep = [i for i in range(len(scene)) if i not in set(holdout)]
-    names = sorted(scene.frames[i].name for i in keep)
+    sub = scene.without(holdout)
+    names = sorted(f.name for f in sub.frames)
     if len(meta.sources) != len(names):
         return f"the run was trained on {len(meta.sources)} views, this scene has {len(names)}"
     odd = sorted(set(map(str, meta.sources)) ^ set(names))
     if odd:
         return f"other views (in only one of the two: {', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''})"
-    if keep:
-        sub = scene.subset(keep)
+    if len(sub):
         tol = 1e-3 * max(float(meta.scale), 1e-12)
         if (np.linalg.norm(sub.centers().mean(0) - np.asarray(meta.center, float)) > tol
                 or abs(sub.scale() - float(meta.scale)) > tol):

@@ -230,6 +230,11 @@ class Scene:
         frames = [self.frames[i] for i in indices]
         return replace(self, frames=frames)
 
+    def without(self, positions: Sequence[int]) -> "Scene":
+        """The scene minus the frames at ``positions`` (a hold-out), the others in their order."""
+        drop = set(positions)
+        return self.subset([i for i in range(len(self)) if i not in drop])
+
     def resized(self, max_side: int) -> "Scene":
         """The scene at a lower resolution: cameras scaled so their longer side is ``max_side`` pixels.
 

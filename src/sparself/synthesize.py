@@ -128,8 +128,7 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
     if why:
         raise InputError(f"{scene.source}: not the scene the run {run_path} was trained on ({run.meta.scene}): {why}")
     targets = load_plan(Path(plan), scene)  # validates the file, and that it was made for this scene
-    hold = set(run.cfg.holdout)
-    scene = scene.subset([i for i in range(len(scene)) if i not in hold])
+    scene = scene.without(run.cfg.holdout)
     check_names([t.name for t in targets], plan, what="frame name", taken=[f.name for f in scene.frames])
     order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)

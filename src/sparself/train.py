@@ -439,10 +439,10 @@ def _training_frames(scene: Scene, cfg: TrainConfig) -> Scene:
     bad = [i for i in cfg.holdout if not 0 <= i < len(scene)]
     if bad:
         raise ConfigError(f"holdout positions {bad} are outside the scene's {len(scene)} frames")
-    keep = [i for i in range(len(scene)) if i not in set(cfg.holdout)]
-    if len(keep) < 3:
-        raise InputError(f"need at least 3 training frames, got {len(keep)} (scene {scene.source})")
-    return one_size(scene.subset(keep))
+    kept = scene.without(cfg.holdout)
+    if len(kept) < 3:
+        raise InputError(f"need at least 3 training frames, got {len(kept)} (scene {scene.source})")
+    return one_size(kept)
 
 
 def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[Sources, RunMeta]:
