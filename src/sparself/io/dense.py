@@ -150,7 +150,7 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
         held = {f.name for f in real_by_index[::EVERY]}
         rule = f"every {EVERY}th real photo in capture order, from the first"
     test = [n for f, n in zip(frames, names) if f.name in held]
-    train = tuple(n for n in names if n not in set(test))
+    train = tuple(n for f, n in zip(frames, names) if f.name not in held)
     split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
     renamed = [replace(f, name=n) for f, n in zip(frames, names)]
     meta = dict(scene.meta)
