@@ -194,6 +194,12 @@ def test_manifest_formats_and_errors(tmp_path):
     (tmp_path / "dup.txt").write_text("a\na\n")
     with pytest.raises(InputError, match="two captures are named 'a'"):
         batch.read_manifest(tmp_path / "dup.txt", "densify")
+    js.write_text(json.dumps([{"path": "a", "name": ".."}]))  # would be OUT/captures/.., i.e. OUT itself
+    with pytest.raises(InputError, match=r"m\.json: capture name '\.\.' contains '\.\.'"):
+        batch.read_manifest(js, "densify")
+    js.write_text(json.dumps([{"path": "a", "name": "Cap"}, {"path": "b", "name": "cap"}]))  # one folder on macOS
+    with pytest.raises(InputError, match="differ only in case"):
+        batch.read_manifest(js, "densify")
     (tmp_path / "one.txt").write_text("a\n")
     ev_units = batch.make_units("evaluate", batch.read_manifest(tmp_path / "one.txt", "evaluate"),
                                 EvalConfig(seeds=3), tmp_path / "out")

@@ -40,6 +40,7 @@ from .errors import InputError, OutputError, SparselfError
 from .evaluate import EvalConfig, evaluate, name_from_source, oracle_share, versions
 from .evaluate import read_manifest as read_text_manifest
 from .io import read_scene
+from .names import check_names
 from .outputs import Input, atomic_file, check_not_input, check_output_dir, remove_stale_temps, write_marker
 from .pipeline import densify
 from .plan import PlanConfig
@@ -202,6 +203,8 @@ def _named(manifest: Path, caps: list[Capture]) -> list[Capture]:
             raise InputError(f"{manifest}: two captures are named {c.name!r} ({seen[c.name]}, {c.path}); "
                              "give one a \"name\" (JSON manifest)")
         seen[c.name] = c.path
+    # each name is a folder under captures/: never '.', '..' or empty, nor two that differ only in case
+    check_names([c.name for c in caps], manifest, what="capture name")
     return caps
 
 
