@@ -205,6 +205,13 @@ def _make_temp(out: Path, make, inside: bool = False) -> Path:
         raise OutputError(f"{out}: cannot write there ({e.strerror or e})") from None
 
 
+def _usual_mode(path: Path, mode: int) -> None:
+    """Give ``path`` ``mode`` less the process umask (what a plain open/mkdir would have made)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, mode & ~umask)
+
+
 def write_marker(folder: Path) -> None:
     """Mark ``folder`` as written by sparself (what --overwrite may replace)."""
     from . import __version__
@@ -276,9 +283,7 @@ def atomic_dir(out: Path, overwrite: bool = False, inputs: Iterable[Input] = ())
     r_out = real(out)
     inside = _in_place(r_out)
     tmp = _make_temp(out, lambda prefix, d: tempfile.mkdtemp(prefix=prefix, dir=d), inside=inside)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700
+    _usual_mode(tmp, 0o777)  # mkdtemp makes 0700
     try:
         write_marker(tmp)
         yield tmp
@@ -319,9 +324,7 @@ def atomic_file(path: Path, inputs: Iterable[Input] = ()) -> Iterator[Path]:
         return name
 
     tmp = _make_temp(path, make)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; results should get the usual file mode
+    _usual_mode(tmp, 0o666)  # mkstemp makes 0600; results should get the usual file mode
     try:
         yield tmp
     except BaseException:
