@@ -668,7 +668,6 @@ def run_cli(scene_paths: Sequence[Path], out: Path, manifest: Path | None = None
     :class:`EvalConfig` (or of :meth:`EvalConfig.quick`). train_cfg: the network's training options.
     """
     check_not_input(out, [Input("manifest", manifest)])
-    check_not_input(out, [Input("manifest", manifest)])
     paths = [Path(p) for p in scene_paths] + (read_manifest(manifest) if manifest else [])
     if not paths:
         raise InputError("no scenes given (pass scene folders or --manifest FILE)")
