@@ -383,7 +383,6 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     assert code == 0, err
     assert "registered 8 of 9 images; not registered: zz_noise.png" in out
     assert "WARNING: sfm: registered 8 of 9 images; not registered: zz_noise.png" in err  # seen with -q too
-    assert "WARNING: sfm: registered 8 of 9 images; not registered: zz_noise.png" in err  # seen with -q too
     assert {p.name: p.read_bytes() for p in d.iterdir()} == hashes
     rep = json.loads((tmp_path / "scene" / "sfm_report.json").read_text())
     assert rep["unregistered"] == ["zz_noise.png"]
