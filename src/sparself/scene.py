@@ -360,9 +360,13 @@ def conversion_of(path: Path) -> tuple[str | None, bool]:
     """(colour conversion or None, EXIF-rotated) of an image file, from its header only. The conversion is
     the PIL mode that :func:`load_image` turns into RGB ("L", "RGBA", "CMYK", "P", ...) or "16-bit"."""
     with Image.open(path) as im:
-        mode = im.mode
-        rotated = int(im.getexif().get(0x0112, 1) or 1) not in (0, 1)
-    return ("16-bit" if mode in _SIXTEEN_BIT else None if mode == "RGB" else mode), rotated
+        return _conversion(im)
+
+
+def _conversion(im: Image.Image) -> tuple[str | None, bool]:
+    """:func:`conversion_of` an opened image (before ``exif_transpose``)."""
+    rotated = int(im.getexif().get(0x0112, 1) or 1) not in (0, 1)
+    return ("16-bit" if im.mode in _SIXTEEN_BIT else None if im.mode == "RGB" else im.mode), rotated
 
 
 def needs_conversion(path: Path) -> bool:
@@ -417,7 +421,7 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
     try:
         with Image.open(path) as im:
             im.load()
-            rotated = int(im.getexif().get(0x0112, 1) or 1) not in (0, 1)
+            conv, rotated = _conversion(im)
             im = ImageOps.exif_transpose(im)
             mode = im.mode
             if mode in _SIXTEEN_BIT:
@@ -426,8 +430,8 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
                 arr = np.repeat(arr[..., None], 3, axis=2)
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-        if warn and (mode != "RGB" or rotated):
-            _note_folder_once(path, "16-bit" if mode in _SIXTEEN_BIT else None if mode == "RGB" else mode, rotated)
+        if warn and (conv is not None or rotated):
+            _note_folder_once(path, conv, rotated)
     except UnidentifiedImageError:
         if path.suffix.lower() in HEIF_EXTENSIONS:
             raise InputError(f"{path}: HEIC/HEIF photo that sparself cannot read; {HEIF_HINT}") from None
