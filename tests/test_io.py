@@ -140,6 +140,9 @@ def test_write_scene_layout_and_read_back(tmp_path):
     assert np.all(b[:, 0] > 3 - 0.9 - 0.35) and np.all(b[:, 1] < 3 + 0.9 + 0.35) and np.all(b[:, 0] < b[:, 1])
     with pytest.raises(OutputError):
         write_scene(scene, out)  # refuses a non-empty folder
+    with pytest.raises(OutputError, match="never writes into or over its inputs"):
+        write_scene(written, out, overwrite=True, images="link")  # links to its own images, deleted by the swap
+    assert (out / "images" / "000.png").read_bytes() == scene.frames[0].path.read_bytes()
     write_scene(scene, out, overwrite=True)
 
 

@@ -26,7 +26,7 @@ from typing import Sequence
 
 from ..errors import InputError
 from ..names import check_names
-from ..outputs import atomic_dir, write_marker
+from ..outputs import atomic_dir, scene_inputs, write_marker
 from ..scene import Frame, Scene, image_size_of, needs_conversion, save_image
 from . import dense as _dense
 from .colmap import find_model_dir, read_colmap, write_colmap
@@ -187,7 +187,7 @@ def write_scene(scene: Scene, out_dir: Path, formats: Sequence[str] = FORMATS, *
     nothing). An existing non-empty ``out_dir`` is refused unless ``overwrite``.
     -> the scene as written (frame paths into ``out_dir/images``)."""
     out_dir = Path(out_dir)
-    with atomic_dir(out_dir, overwrite) as tmp:
+    with atomic_dir(out_dir, overwrite, scene_inputs(scene)) as tmp:  # never over the scene's own files
         written = write_scene_into(scene, tmp, formats, images=images, text=text, dense=dense)
     # paths were into the temporary folder, which is now out_dir
     for f in written.frames:
