@@ -25,7 +25,6 @@ import json
 import logging
 import os
 import shutil
-import signal
 import tempfile
 import time
 import traceback
@@ -38,6 +37,7 @@ from tqdm.auto import tqdm
 
 from .errors import InputError, OutputError, SparselfError
 from .evaluate import EvalConfig, evaluate, name_from_source, oracle_share, versions
+from .interrupts import signals_interrupt
 from .evaluate import read_manifest as read_text_manifest
 from .io import read_scene
 from .names import check_names
@@ -352,32 +352,15 @@ class _Progress:
         self.bar.close()
 
 
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM stops the batch like Ctrl-C does (running tasks cancelled, no temp folders left)."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    try:
-        old = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
 def run_units(units: list[Unit], cfg: BatchConfig, out: Path) -> list[UnitResult]:
     """Run the units (locally or on Ray) behind one progress bar; on an interruption the running units
     are cancelled and their temporary folders removed before KeyboardInterrupt goes on up."""
     bar = _Progress(len(units), cfg.progress)
     try:
         if cfg.local:
-            with _sigterm_as_interrupt():
+            with signals_interrupt(reset=False):
                 return _run_local(units, bar)
-        with ray_session(cfg, out) as ray, _sigterm_as_interrupt():  # after ray.init, which sets its own
+        with ray_session(cfg, out) as ray, signals_interrupt(reset=False):  # after ray.init, which sets its own
             return _run_ray(ray, units, cfg, bar)
     finally:
         bar.close()

@@ -12,12 +12,12 @@ import logging
 import os
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
 from . import __version__
 from .errors import SparselfError
+from .interrupts import signals_interrupt, stopped_by
 
 log = logging.getLogger("sparself")
 
@@ -94,33 +94,6 @@ class _Repeats(logging.Filter):
         return out
 
 
-_STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
-_stopped_by: list[int] = []  # the signal that stopped the running command
-
-
-def _stop(signum, frame) -> None:
-    for s in _STOP_SIGNALS:  # a second signal must not interrupt the cleanup of the first
-        signal.signal(s, signal.SIG_IGN)
-    _stopped_by.append(signum)
-    raise KeyboardInterrupt
-
-
-@contextlib.contextmanager
-def _signals_interrupt():
-    """While a command runs, SIGTERM (kill, timeout, container stop) and SIGHUP (closed terminal) behave
-    like Ctrl-C: temporary output removed, checkpoint kept. Restored afterwards (main() runs in tests)."""
-    _stopped_by.clear()
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {s: signal.signal(s, _stop) for s in _STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -140,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     pkg.setLevel(level)
     pkg.propagate = False
     try:
-        with _signals_interrupt():
+        with signals_interrupt():
             return int(args.func(args) or 0)
     except SparselfError as e:
         if args.debug:
@@ -148,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sparself {args.command}: error: {e}", file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM or SIGHUP: exit status 128 + the signal
-        signum = _stopped_by[-1] if _stopped_by else signal.SIGINT
+        signum = stopped_by()
         by = f" by {signal.Signals(signum).name}" if signum != signal.SIGINT else ""
         print(f"sparself {args.command}: interrupted{by}" + (f"; {e}" if str(e) else ""), file=sys.stderr)
         return 128 + int(signum)
