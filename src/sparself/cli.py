@@ -230,7 +230,7 @@ def _add_evaluate(sub) -> None:
         description="Run the honest evaluation protocol on one or many captures: hold out every 8th interior "
                     "frame (never seen by any step), take N evenly spaced inputs from dense captures, score "
                     "sparself and the baselines (nearest, blend, flow, plane sweep) at the held-out poses, and "
-                    "reconstruct (MPI, NeRF, gsplat) from N real views vs N + synthesized views (plus the "
+                    "reconstruct (MPI, NeRF, 3DGS) from N real views vs N + synthesized views (plus the "
                     "real-photo oracle). Writes results.json, report.md, report.html and PNG figures to --out.")
     p.add_argument("scenes", type=Path, nargs="*", help="scene folders or pose files")
     p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
