@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from sparself.geometry import Pose
-from sparself.recon.nerf import NerfConfig, fit, pixel_rays
+import torch
+
+from sparself.recon.nerf import NerfConfig, fit, fit_device, pixel_rays
 from sparself.scene import Camera, Frame, Scene
 
 DEPTH = 4.0
@@ -93,3 +95,13 @@ def test_nerf_rejects_unknown_settings_and_empty_scenes():
         fit(scene, stepz=3)
     with pytest.raises(InputError, match="no frames"):
         fit(scene.subset([]), steps=1)
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="no CUDA device"):
+            fit(scene, steps=1, device="cuda")
+
+
+def test_nerf_fits_on_the_device_it_is_given():
+    scene, _ = _plane_scene(n_side=2, size=8)
+    r = fit(scene, steps=3, device="cpu", progress=False)
+    assert r.field.background.device.type == "cpu"
+    assert fit_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")

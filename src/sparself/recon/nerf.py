@@ -55,6 +55,7 @@ class NerfConfig:
     chunk: int = 4096  # rays per chunk when rendering
     progress: bool = True
     bounds: tuple[float, float] | None = None  # override (near, far)
+    device: str = "auto"  # "auto": CUDA when torch sees one, else the CPU (deterministic there only)
     extra: dict = field(default_factory=dict)
 
 
@@ -158,13 +159,13 @@ def _render_rays(field_: _Field, o: torch.Tensor, d: torch.Tensor, near: float, 
                  n_samples: int, centre: torch.Tensor, radius: float,
                  jitter: torch.Generator | None) -> torch.Tensor:
     """Volume-render rays o, d (R, 3) -> colours (R, 3). Samples log-uniform in depth in [near, far]."""
-    R = o.shape[0]
-    u = (torch.arange(n_samples, dtype=o.dtype) + 0.5).expand(R, n_samples)
+    R, kw = o.shape[0], dict(dtype=o.dtype, device=o.device)
+    u = (torch.arange(n_samples, **kw) + 0.5).expand(R, n_samples)
     if jitter is not None:
-        u = u + (torch.rand(R, n_samples, generator=jitter, dtype=o.dtype) - 0.5)
+        u = u + (torch.rand(R, n_samples, generator=jitter, **kw) - 0.5)
     s = u / n_samples
     t = near * (far / near) ** s  # (R, S) depths
-    edges = near * (far / near) ** (torch.arange(n_samples + 1, dtype=o.dtype) / n_samples)
+    edges = near * (far / near) ** (torch.arange(n_samples + 1, **kw) / n_samples)
     delta = (edges[1:] - edges[:-1]).expand(R, n_samples)
     pts = o[:, None, :] + t[..., None] * d[:, None, :]
     xc = contract((pts - centre) / radius)
@@ -173,7 +174,7 @@ def _render_rays(field_: _Field, o: torch.Tensor, d: torch.Tensor, near: float, 
     sigma, rgb = sigma.view(R, n_samples), rgb.view(R, n_samples, 3)
     # density in normalised units so the same initialisation works at any scene scale
     alpha = 1.0 - torch.exp(-sigma * delta * d.norm(dim=-1, keepdim=True) / radius)
-    trans = torch.cumprod(torch.cat([torch.ones(R, 1, dtype=o.dtype), 1.0 - alpha + 1e-10], 1), 1)
+    trans = torch.cumprod(torch.cat([torch.ones(R, 1, **kw), 1.0 - alpha + 1e-10], 1), 1)
     w = alpha * trans[:, :-1]
     color = (w[..., None] * rgb).sum(1) + trans[:, -1:] * torch.sigmoid(field_.background)
     return color
@@ -194,15 +195,16 @@ class NerfRenderer:
     @torch.no_grad()
     def render(self, pose: Pose, camera: Camera) -> np.ndarray:
         o, d = pixel_rays(pose, camera)
-        o_t = torch.from_numpy(o).float()
-        d_t = torch.from_numpy(d).float()
-        centre = torch.from_numpy(self.centre).float()
+        dev = self.field.background.device
+        o_t = torch.from_numpy(o).float().to(dev)
+        d_t = torch.from_numpy(d).float().to(dev)
+        centre = torch.from_numpy(self.centre).float().to(dev)
         out = []
         for i in range(0, len(o_t), self.config.chunk):
             out.append(_render_rays(self.field, o_t[i:i + self.config.chunk], d_t[i:i + self.config.chunk],
                                     self.near, self.far, self.config.n_samples, centre, self.radius, None))
         img = torch.cat(out).view(camera.height, camera.width, 3).clamp(0, 1)
-        return img.numpy().astype(np.float32)
+        return img.cpu().numpy().astype(np.float32)
 
 
 def prepare_fit(scene: Scene, config_cls, config, overrides: dict, what: str):
@@ -243,9 +245,19 @@ def at_most_threads(n: int):
         torch.set_num_threads(prev)
 
 
+def fit_device(name: str) -> torch.device:
+    """The torch device a reconstructor fits on: "auto" is CUDA when torch sees one, else the CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError("device 'cuda' was asked for, but torch sees no CUDA device here")
+    return torch.device(name)
+
+
 def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
     torch.manual_seed(cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed)
+    dev = fit_device(cfg.device)
+    gen = torch.Generator(device=dev).manual_seed(cfg.seed)
     near, far = cfg.bounds or scene.depth_bounds()
     near, far = float(max(near, 1e-4)), float(max(far, near * 1.05))
     centre, radius = scene_normalization(scene)
@@ -256,12 +268,11 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
         origins.append(o)
         dirs.append(d)
         colors.append(img.reshape(-1, 3))
-    o_all = torch.from_numpy(np.concatenate(origins)).float()
-    d_all = torch.from_numpy(np.concatenate(dirs)).float()
-    c_all = torch.from_numpy(np.concatenate(colors)).float()
-    centre_t = torch.from_numpy(centre).float()
+    o_all, d_all, c_all, centre_t = (torch.from_numpy(np.asarray(a)).float().to(dev) for a in (
+        np.concatenate(origins), np.concatenate(dirs), np.concatenate(colors), centre))
 
-    field_ = _Field(tuple(cfg.levels), cfg.features, cfg.hidden)
+    # initialised on the CPU, so a seed gives the same start on every device
+    field_ = _Field(tuple(cfg.levels), cfg.features, cfg.hidden).to(dev)
     with torch.no_grad():
         # start the background at the mean image colour: rays that leave the scene see it
         field_.background.copy_(torch.logit(c_all.mean(0).clamp(0.02, 0.98)))
@@ -275,7 +286,7 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
     history: list[float] = []
     n = len(o_all)
     for _ in tqdm(range(cfg.steps), desc="nerf fit", disable=not cfg.progress, leave=False):
-        idx = torch.randint(0, n, (min(cfg.batch_rays, n),), generator=gen)
+        idx = torch.randint(0, n, (min(cfg.batch_rays, n),), generator=gen, device=dev)
         pred = _render_rays(field_, o_all[idx], d_all[idx], near, far, cfg.n_samples, centre_t, radius, gen)
         loss = F.mse_loss(pred, c_all[idx])
         total = loss + cfg.tv_weight * field_.tv() if cfg.tv_weight > 0 else loss
