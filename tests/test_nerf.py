@@ -6,10 +6,9 @@ import time
 
 import numpy as np
 import pytest
-
-from sparself.geometry import Pose
 import torch
 
+from sparself.geometry import Pose
 from sparself.recon.nerf import NerfConfig, fit, fit_device, pixel_rays
 from sparself.scene import Camera, Frame, Scene
 
