@@ -215,3 +215,18 @@ def test_missing_imagenet_weights_are_reported_once_per_evaluation(tmp_path, mon
             make(scene, seed)
     said = [r for r in caplog.records if "no ImageNet weights" in r.getMessage()]
     assert len(said) == 1
+
+
+def test_partial_results_are_handed_out_after_each_step(tmp_path):
+    scene = _capture(tmp_path / "cap")
+    hooks, _ = _hooks()
+    hooks["reconstructors"] = {"nearest": _NearestRenderer, "nearest2": _NearestRenderer}
+    seen = []
+
+    def on_partial(res):  # a copy of what is finished at each call
+        seen.append((sorted(res["view_synthesis"]), sorted(res.get("densification", {}))))
+
+    final = ev.evaluate_scene(scene, _tiny_cfg(seeds=1), None, on_partial=on_partial, **hooks)
+    assert [s[1] for s in seen] == [[], [], ["nearest"], ["nearest", "nearest2"]]
+    assert seen[0][0] == ["sparself"] and seen[1][0] == ["blend", "nearest", "sparself"]
+    assert final["densification"]["nearest2"]["status"] == "ok"

@@ -334,6 +334,11 @@ class _SceneEval:
     ex_dir: Path | None = None
     net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
     baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
+    on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step
+
+    def partial(self) -> None:
+        if self.on_partial is not None:
+            self.on_partial(self.res)
 
     @property
     def targets(self) -> list[Frame]:
@@ -531,6 +536,7 @@ def _densification(ev: _SceneEval, reconstructors: dict[str, Callable[[Scene], o
     """Each reconstructor from N views vs N + synthesized views vs the oracle; a failure is recorded."""
     recs = reconstructors if reconstructors is not None else {}
     dens: dict = {}
+    ev.res["densification"] = dens
     for rname in ev.cfg.reconstructors if reconstructors is None else list(recs):
         t0 = time.perf_counter()
         entry = dens[rname] = {}
@@ -540,28 +546,34 @@ def _densification(ev: _SceneEval, reconstructors: dict[str, Callable[[Scene], o
             log.warning("%s: reconstructor %s failed: %s", ev.name, rname, e)
             entry.update(status="failed", error=f"{type(e).__name__}: {e}")
         entry["seconds"] = time.perf_counter() - t0
-    ev.res["densification"] = dens
+        ev.partial()
 
 
 def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *,
                    network: Callable[[Scene, int], SynthFn] | None = None,
                    reconstructors: dict[str, Callable[[Scene], object]] | None = None,
-                   baselines: dict[str, SynthFn] | None = None) -> dict:
+                   baselines: dict[str, SynthFn] | None = None,
+                   on_partial: Callable[[dict], None] | None = None) -> dict:
     """Run the protocol on one scene. Returns the scene's results (JSON-able).
 
     network: ``make(inputs_scene, seed) -> synthesize`` (default: :func:`network_factory`); None when
     unavailable is recorded. reconstructors / baselines: override the registries (tests).
     out_dir: where example images are saved (``examples/<scene>/``); None saves none.
+    on_partial: called with the results so far after the network, the baselines and each reconstructor
+    (long runs can save what they have).
     """
     t_start = time.perf_counter()
     ev = _start_scene(scene, cfg, out_dir)
+    ev.on_partial = on_partial
     ev.res["view_synthesis"], ev.res["midpoints"] = {}, {}
     t0 = time.perf_counter()
     _network_synthesis(ev, network)
     ev.res["timings"]["network"] = time.perf_counter() - t0
+    ev.partial()
     t0 = time.perf_counter()
     _baseline_synthesis(ev, baselines if baselines is not None else _baseline_fns(cfg.baselines))
     ev.res["timings"]["baselines"] = time.perf_counter() - t0
+    ev.partial()
     _densification(ev, reconstructors)
     ev.res["status"] = "ok"
     ev.res["timings"]["total"] = time.perf_counter() - t_start
