@@ -32,31 +32,44 @@ from sparself.train import TrainConfig, train
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-def capture(name: str):
-    """-> (sources Scene (resized), targets list[Frame] without images, ground truth (T, H, W, 3), size)."""
+def capture(name: str, size: int | None = None):
+    """-> (sources Scene (resized), targets list[Frame] without images, ground truth (T, H, W, 3), size).
+    size: the longer image side (default: the capture's own, above)."""
     from sparself.io import read_scene
 
     if name == "bird":
         full = read_scene(DATA / "llff_bird")
         src_idx = [int(i) for i in np.round(np.linspace(0, 183, 25))]
         tgt_idx = [int(round((a + b) / 2)) for a, b in zip(src_idx[:-1], src_idx[1:])]
-        size = 240
+        size_default = 240
     elif name == "temple":
         full = read_scene(DATA / "middlebury_templeRing")
         src_idx = list(range(0, len(full), 2))
         tgt_idx = list(range(1, len(full), 2))
-        size = 160
+        size_default = 160
     elif name in ("dino", "templesparse"):  # 16-view sparse rings (~22 degrees apart): a wider baseline
         full = read_scene(DATA / ("middlebury_dinoSparseRing" if name == "dino" else "middlebury_templeSparseRing"))
         src_idx = list(range(0, len(full), 2))
         tgt_idx = list(range(1, len(full), 2))
-        size = 160
+        size_default = 160
     else:
         raise SystemExit(f"unknown capture {name}")
+    size = size or size_default
     small = full.resized(size)
     targets = [dataclasses.replace(small.frames[i], path=None, image=None) for i in tgt_idx]
     gt = np.stack([small.load(i) for i in tgt_idx])  # read only for scoring
     return small.subset(src_idx), targets, gt, size
+
+
+def peak_memory_mb(device: str) -> float:
+    """Peak GPU memory since the last call (CUDA), else the process's peak resident memory so far."""
+    if device.startswith("cuda"):
+        peak = torch.cuda.max_memory_allocated() / 2**20
+        torch.cuda.reset_peak_memory_stats()
+        return peak
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def score(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
@@ -70,6 +83,8 @@ def main() -> None:
     ap.add_argument("--methods", default="nearest,blend,planesweep,sweep,sweep-nocontext,fc")
     ap.add_argument("--epochs", type=int, default=100)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--size", type=int, default=None, help="longer image side for every capture (default: each one's)")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda, for the network methods")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a TrainConfig field for the network methods (JSON value), repeatable")
@@ -78,9 +93,10 @@ def main() -> None:
     overrides = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     rows = []
-    print(f"{'capture':8} {'method':16} {'PSNR':>6} {'SSIM':>6} {'train s':>8} {'train cpu':>9} {'synth s':>8}")
+    print(f"{'capture':8} {'method':16} {'PSNR':>6} {'SSIM':>6} {'train s':>8} {'train cpu':>9} {'synth s':>8} "
+          f"{'peak MB':>9}")
     for cap in args.captures.split(","):
-        sources, targets, gt, size = capture(cap)
+        sources, targets, gt, size = capture(cap, args.size)
         for m in args.methods.split(","):
             t_train = c_train = 0.0
             if m in ("nearest", "blend", "planesweep", "flow"):
@@ -88,7 +104,7 @@ def main() -> None:
                 pred = getattr(baselines, m)(sources, targets)
             else:
                 cfg = TrainConfig(decoder="fc" if m == "fc" else "sweep", epochs=args.epochs, size=size,
-                                  context=m != "sweep-nocontext", fc_side=size // 2, device="cpu")
+                                  context=m != "sweep-nocontext", fc_side=size // 2, device=args.device)
                 cfg = dataclasses.replace(cfg, **{k: v for k, v in overrides.items() if m != "fc"})
                 with tempfile.TemporaryDirectory() as tmp:
                     t0, c0 = time.perf_counter(), time.process_time()
@@ -97,11 +113,12 @@ def main() -> None:
                     t0 = time.perf_counter()
                     pred = synthesize(run, sources, targets)
             t_syn = time.perf_counter() - t0
+            peak = peak_memory_mb(args.device)
             p, s = score(pred, gt)
             rows.append({"capture": cap, "method": m, "psnr": p, "ssim": s, "train_s": t_train,
                          "train_cpu_s": c_train, "synth_s": t_syn, "n_targets": len(targets),
-                         "hw": list(gt.shape[1:3]), "epochs": args.epochs, "overrides": overrides})
-            print(f"{cap:8} {m:16} {p:6.2f} {s:6.3f} {t_train:8.1f} {c_train:9.1f} {t_syn:8.1f}", flush=True)
+                         "hw": list(gt.shape[1:3]), "epochs": args.epochs, "overrides": overrides, "peak_mb": peak})
+            print(f"{cap:8} {m:16} {p:6.2f} {s:6.3f} {t_train:8.1f} {c_train:9.1f} {t_syn:8.1f} {peak:9.0f}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 
