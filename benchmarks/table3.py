@@ -1,0 +1,121 @@
+"""The densification table (the paper's Table 3 shape) one capture and one network seed at a time, so that
+seeds and captures can run side by side on one machine (a GPU: the network, the NeRF and gsplat run there),
+then merged into one report.
+
+    python benchmarks/table3.py run ../shared/data/llff_bird --seed 0 --out out/t3/bird_s0 [--recon mpi,nerf,3dgs]
+    python benchmarks/table3.py merge out/t3/bird_s0 out/t3/bird_s1 ... --out out/t3/report
+
+``run`` saves ``results.json`` after the network, the baselines and each reconstructor (a run stopped by a
+time limit keeps what it finished). ``merge`` groups the runs by capture, merges their seeds
+(``sparself.batch.merge_seeds``: the lowest seed's run carries the baselines, N alone and the oracle) and
+writes ``results.json``, ``report.md`` and ``report.html``. Every number is scored on held-out real photos
+(``sparself evaluate``'s protocol and its defaults unless given here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+
+def _gsplat_fit(steps: int, seed: int):
+    """3DGS with gsplat (CUDA) at a fixed step count, or the CPU splatting where gsplat cannot run."""
+    from sparself.recon import get_reconstructor
+    from sparself.recon.gsplat import available
+
+    if available()[0]:
+        fit = get_reconstructor("gsplat")
+        return lambda sc: fit(sc, steps=steps, seed=seed, progress=False)
+    fit = get_reconstructor("splat")
+    return lambda sc: fit(sc, seed=seed, progress=False)
+
+
+def run(args) -> int:
+    from sparself.evaluate import EvalConfig, evaluate_scene, reconstructor, versions
+    from sparself.io import read_scene
+
+    recons = tuple(args.recon.split(","))
+    cfg = EvalConfig(size=args.size, seeds=1, first_seed=args.seed, reconstructors=recons,
+                     densify_baselines=tuple(filter(None, args.densify_baselines.split(","))),
+                     baselines=tuple(args.baselines.split(",")), lpips=False, progress=False,
+                     max_eval=args.max_eval, epochs=args.epochs, nerf_steps=args.nerf_steps, **_set(args.set))
+    fits = {r: _gsplat_fit(args.gs_steps, cfg.recon_seed) if r == "3dgs" else reconstructor(r, cfg) for r in recons}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    settings = {**json.loads(json.dumps(dataclasses.asdict(cfg), default=str)), "versions": versions(),
+                "gsplat_steps": args.gs_steps, "lpips_status": "unavailable: disabled by settings"}
+
+    def save(res: dict) -> None:
+        res = {**res, "wall_s": time.time() - t0}
+        tmp = out / "results.json.tmp"
+        tmp.write_text(json.dumps({"settings": settings, "not_run": {}, "scenes": [res]}, indent=1, default=_num))
+        tmp.replace(out / "results.json")
+        logging.warning("%s seed %d: saved after %.0f s", res.get("name"), args.seed, time.time() - t0)
+
+    res = evaluate_scene(read_scene(Path(args.scene)), cfg, None, reconstructors=fits, on_partial=save)
+    save(res)
+    return 0
+
+
+def _set(pairs: list[str]) -> dict:
+    return {k: json.loads(v) for k, v in (p.split("=", 1) for p in pairs)}
+
+
+def _num(x):
+    import numpy as np
+
+    return x.item() if isinstance(x, np.generic) else str(x)
+
+
+def merge(args) -> int:
+    from sparself.batch import merge_seeds
+    from sparself.report import write_report
+
+    runs = [json.loads((Path(d) / "results.json").read_text()) for d in args.runs]
+    by_scene: dict[str, list] = {}
+    for d, data in zip(args.runs, runs):
+        s = data["scenes"][0]
+        by_scene.setdefault(s["name"], []).append((data["settings"]["first_seed"], s, Path(d)))
+    scenes = [merge_seeds(parts) for parts in by_scene.values()]
+    settings = dict(runs[0]["settings"], seeds=len({p[0] for ps in by_scene.values() for p in ps}))
+    results = {"settings": settings, "not_run": {}, "scenes": scenes}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(results, indent=1, allow_nan=True))
+    write_report(results, out)
+    print(out / "report.md")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="one capture, one network seed")
+    r.add_argument("scene")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--out", required=True)
+    r.add_argument("--recon", default="mpi,nerf,3dgs")
+    r.add_argument("--size", type=int, default=128)
+    r.add_argument("--baselines", default="nearest,blend,flow,planesweep")
+    r.add_argument("--densify-baselines", default="flow")
+    r.add_argument("--max-eval", type=int, default=None)
+    r.add_argument("--epochs", type=int, default=None, help="network epochs (default: the network's)")
+    r.add_argument("--nerf-steps", type=int, default=1000)
+    r.add_argument("--gs-steps", type=int, default=3000, help="gsplat steps per fit (CUDA)")
+    r.add_argument("--set", action="append", default=[], metavar="FIELD=JSON", help="any other EvalConfig field")
+    m = sub.add_parser("merge", help="merge runs into one report")
+    m.add_argument("runs", nargs="+")
+    m.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
+    return run(args) if args.cmd == "run" else merge(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
