@@ -3,6 +3,7 @@ seeds and captures can run side by side on one machine (a GPU: the network, the 
 then merged into one report.
 
     python benchmarks/table3.py run ../shared/data/llff_bird --seed 0 --out out/t3/bird_s0 [--recon mpi,nerf,3dgs]
+    python benchmarks/table3.py run ../shared/data/middlebury_dinoSparseRing --seeds 3 --out out/t3/dino
     python benchmarks/table3.py merge out/t3/bird_s0 out/t3/bird_s1 ... --out out/t3/report
 
 ``run`` saves ``results.json`` after the network, the baselines and each reconstructor (a run stopped by a
@@ -40,7 +41,7 @@ def run(args) -> int:
     from sparself.io import read_scene
 
     recons = tuple(args.recon.split(","))
-    cfg = EvalConfig(size=args.size, seeds=1, first_seed=args.seed, reconstructors=recons,
+    cfg = EvalConfig(size=args.size, seeds=args.seeds, first_seed=args.seed, reconstructors=recons,
                      densify_baselines=tuple(filter(None, args.densify_baselines.split(","))),
                      baselines=tuple(args.baselines.split(",")), lpips=False, progress=False,
                      max_eval=args.max_eval, epochs=args.epochs, nerf_steps=args.nerf_steps, **_set(args.set))
@@ -98,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="one capture, one network seed")
     r.add_argument("scene")
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--seed", type=int, default=0, help="the (first) network seed")
+    r.add_argument("--seeds", type=int, default=1, help="network seeds run one after another in this run")
     r.add_argument("--out", required=True)
     r.add_argument("--recon", default="mpi,nerf,3dgs")
     r.add_argument("--size", type=int, default=128)
