@@ -36,7 +36,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .errors import InputError, OutputError, SparselfError
-from .evaluate import EvalConfig, evaluate, name_from_source, oracle_share, versions
+from .evaluate import PLANNED_SECTIONS, EvalConfig, evaluate, name_from_source, oracle_share, versions
 from .interrupts import signals_interrupt
 from .evaluate import read_manifest as read_text_manifest
 from .io import read_scene
@@ -607,6 +607,9 @@ def _evaluate_report(units: list[Unit], results: list[UnitResult], tmp: Path, ma
     write_report(data, tmp)
 
 
+SEEDED_SECTIONS = ("view_synthesis",) + PLANNED_SECTIONS  # a scene's sections with the network's per-seed sets
+
+
 def merge_seeds(parts: list[tuple[int, dict, Path]]) -> dict:
     """One capture's evaluate result from its seed units: (seed, scene result, unit folder relative to
     the report). The lowest seed's result carries the baselines and the oracle; sparself's per-seed
@@ -616,7 +619,7 @@ def merge_seeds(parts: list[tuple[int, dict, Path]]) -> dict:
     merged["examples"], merged["timings"] = {}, {}
     for seed, s, rel in parts:
         if s is not parts[0][1]:
-            for sec in ("view_synthesis", "midpoints"):
+            for sec in SEEDED_SECTIONS:
                 if NETWORK in s.get(sec, {}):
                     merged.setdefault(sec, {}).setdefault(NETWORK, {"per_seed": []})["per_seed"] += \
                         s[sec][NETWORK]["per_seed"]
@@ -633,10 +636,11 @@ def merge_seeds(parts: list[tuple[int, dict, Path]]) -> dict:
             merged["timings"][k] = merged["timings"].get(k, 0.0) + v
     if merged.get("camera_plot"):
         merged["camera_plot"] = str(parts[0][2] / merged["camera_plot"])
-    for entry in [merged.get("view_synthesis", {}).get(NETWORK), merged.get("midpoints", {}).get(NETWORK)] + \
+    for entry in [merged.get(sec, {}).get(NETWORK) for sec in SEEDED_SECTIONS] + \
             [d.get(NETWORK) for d in merged.get("densification", {}).values()]:
         if entry and entry.get("per_seed"):
-            entry["summary"] = _seeded(entry["per_seed"]).summary()
+            again = _seeded(entry["per_seed"]).to_json()  # the summary, and per group where there are two
+            entry.update({k: again[k] for k in ("summary", "groups") if k in again})
     for d in merged.get("densification", {}).values():
         oracle_share(d)
     return merged

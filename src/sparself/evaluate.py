@@ -7,19 +7,25 @@ Protocol (per scene, in this order):
    ``llffhold`` split but without frame 0). Only their *poses* leave this module's scoring step;
    their pixels are decoded in :func:`_load_truth`, called only while scoring.
 2. **Dense captures** (enough frames left for at least one real photo in every gap between the N
-   inputs): N evenly spaced frames of the rest are the sparse input (N = 25 by default). The planned
-   midpoints (sparself.plan, 8 by default) are *snapped* to the real frame nearest the planned index in
-   their gap, so each has a real photo at exactly its pose: the ground truth for view synthesis at
-   midpoints, and the oracle's training image. Extrapolated poses (2 by default) keep their planned pose.
+   inputs): an *extrapolation margin* of frames is kept beyond each end (``extrapolation_margin``; auto:
+   one input spacing, at least ``holdout_every + 1`` frames so a held-out frame lies beyond each end;
+   0: none), and N evenly spaced frames of the rest inside the margins are the sparse input (N = 25 by
+   default). Margin frames are never inputs. The planned midpoints (sparself.plan, 8 by default) are
+   *snapped* to the real frame nearest the planned index in their gap, and the extrapolated poses
+   (t = 1.2, 2 by default) to the margin frame nearest the planned index beyond the same end input, so
+   each has a real photo at exactly its pose: the ground truth for view synthesis at planned poses
+   (``midpoints`` and ``extrapolations``), and the oracle's training image.
 3. **Sparse captures** (too few frames, e.g. 16-view Middlebury rings): every other interior frame is
    held out and the rest are the inputs. No real photos lie between inputs except held-out ones, so no
    oracle is run and midpoints are not scored separately (the held-out frames are the midpoints).
 4. Two questions:
    - *View synthesis*: the network (``seeds`` seeds) and every baseline synthesize the held-out
-     poses from the inputs alone; scored against the real photos.
+     poses from the inputs alone; scored against the real photos. Held-out frames beyond the first or
+     last input (in the margins) are *extrapolated*, the others *interpolated*: every score is also
+     summarised per group (``groups``, where a set has both).
    - *Densification*: each reconstructor is fitted on the N inputs ("25"), on N + synthesized views
      ("35", network per seed and each densify-baseline), and on the oracle (N + real photos at the
-     snapped midpoints; extrapolations keep the network's seed-0 views), then renders the held-out
+     snapped planned poses; a planned pose without one keeps the network's seed-0 view), then renders the held-out
      poses. The oracle share is (35 - 25) / (oracle - 25) in PSNR.
 
 Results: a JSON-able dict (per frame, per scene, mean/std, every setting and versions). A scene that
@@ -56,7 +62,7 @@ from .plot import plot_cameras
 from .recon import get_reconstructor
 from .report import safe_name as _safe
 from .report import write_report
-from .results import NETWORK, FrameScore, ScoredSet, SeededSets
+from .results import EXTRAPOLATED, INTERPOLATED, NETWORK, FrameScore, ScoredSet, SeededSets
 from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
 from .synthesize import densify_scene, synthesizer
 from .train import TrainConfig, train
@@ -66,6 +72,7 @@ log = logging.getLogger(__name__)
 SynthFn = Callable[[Scene, list], np.ndarray]  # synthesize(scene, targets) -> (T, H, W, 3)
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
 MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported
+PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
 
 
 # what --quick changes
@@ -80,6 +87,10 @@ class EvalConfig:
 
     size: int = option(128, "longer image side in pixels for every step (images are resized once, on load)")
     inputs: int = option(25, "N, the number of sparse input views taken from a dense capture")
+    extrapolation_margin: int | None = option(
+        None, "capture frames kept beyond the first and last input of a dense capture (never inputs): their real "
+        "photos score extrapolated views; auto: one input spacing, at least holdout_every + 1 so held-out frames "
+        "lie beyond both ends; 0: the inputs span the whole capture")
     holdout_every: int = option(8, "hold out every k-th interior frame of a dense capture")
     sparse_holdout_every: int = option(2, "the same for captures too small for the dense protocol")
     n_mid: int = option(8, "planned midpoints used for densification")
@@ -115,6 +126,8 @@ class EvalConfig:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
         if self.first_seed < 0:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
+        if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
+            raise ConfigError(f"extrapolation_margin must not be negative, got {self.extrapolation_margin}")
 
     @classmethod
     def quick(cls, **kw) -> "EvalConfig":
@@ -162,8 +175,9 @@ class Split:
     """Which frame (by position in capture order) plays which role.
 
     kind: "dense" or "sparse". eval: held-out frames. inputs: sparse input frames.
-    between: frames neither held out nor input (real photos usable as midpoint truth / oracle).
-    rule: the protocol in words, for the report.
+    between: frames between the first and last input, neither held out nor input (real photos usable as
+    midpoint truth / oracle). margin: frames beyond the first and last input, not held out (real photos
+    usable as extrapolation truth / oracle; never inputs). rule: the protocol in words, for the report.
     """
 
     kind: str
@@ -171,6 +185,41 @@ class Split:
     inputs: list[int]
     between: list[int]
     rule: str
+    margin: list[int] = field(default_factory=list)
+
+    def group(self, i: int) -> str:
+        """EXTRAPOLATED for a frame beyond the first or last input in capture order, else INTERPOLATED."""
+        return EXTRAPOLATED if i < self.inputs[0] or i > self.inputs[-1] else INTERPOLATED
+
+
+def extrapolation_margin(n: int, cfg: EvalConfig) -> int:
+    """Frames kept beyond each end input: the setting, or auto: one input spacing ((n-1)/(N+1) frames),
+    at least holdout_every + 1 so that a held-out frame lies beyond each end."""
+    if cfg.extrapolation_margin is not None:
+        return cfg.extrapolation_margin
+    return max(round((n - 1) / (cfg.inputs + 1)), cfg.holdout_every + 1)
+
+
+def _dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig) -> Split:
+    """N inputs evenly spaced over the frames inside the extrapolation margins (all of them if too few)."""
+    m = extrapolation_margin(n, cfg)
+    inside = [i for i in rest if m <= i <= n - 1 - m]
+    dropped = ""
+    if m and len(inside) < 2 * cfg.inputs - 1:
+        dropped = f" (too few frames for a {m}-frame extrapolation margin)"
+        m, inside = 0, rest
+    inputs = evenly_spaced(inside, cfg.inputs)
+    between = [i for i in rest if inputs[0] < i < inputs[-1] and i not in set(inputs)]
+    margin = [i for i in rest if i < inputs[0] or i > inputs[-1]]
+    beyond = [i for i in held if i < inputs[0] or i > inputs[-1]]
+    rule = (f"dense: every {cfg.holdout_every}th interior frame held out ({len(held)}); {len(inputs)} evenly "
+            f"spaced inputs from the {len(inside)} remaining frames {inside[0]}..{inside[-1]}{dropped}; ")
+    if margin:
+        rule += (f"the {len(margin)} real frames beyond the first and last input (an extrapolation margin of {m} "
+                 f"frames, never inputs) are ground truth for extrapolated poses and the oracle, and the "
+                 f"{len(beyond)} held-out frames there are scored as extrapolations; ")
+    rule += f"the other {len(between)} real frames are ground truth for midpoint poses and the oracle"
+    return Split("dense", held, inputs, between, rule, margin)
 
 
 def make_split(n: int, cfg: EvalConfig) -> Split:
@@ -178,12 +227,7 @@ def make_split(n: int, cfg: EvalConfig) -> Split:
     held = holdout_indices(n, cfg.holdout_every)
     rest = [i for i in range(n) if i not in set(held)]
     if len(rest) >= 2 * cfg.inputs - 1:
-        inputs = evenly_spaced(rest, cfg.inputs)
-        between = [i for i in rest if i not in set(inputs)]
-        rule = (f"dense: every {cfg.holdout_every}th interior frame held out ({len(held)}); "
-                f"{len(inputs)} evenly spaced inputs from the remaining {len(rest)}; the other "
-                f"{len(between)} real frames are ground truth for midpoint poses and the oracle")
-        return Split("dense", held, inputs, between, rule)
+        return _dense_split(n, held, rest, cfg)
     held = list(range(1, n - 1, cfg.sparse_holdout_every))  # second, fourth, ...: the ends stay inputs
     inputs = [i for i in range(n) if i not in set(held)]
     rule = (f"sparse: too few frames for {cfg.inputs} inputs with real frames between them; every "
@@ -275,25 +319,38 @@ def _with_images(scene: Scene, extra: list[Frame], images) -> Scene:
     return densify_scene(scene, list(extra), np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:]))
 
 
+def _snap(index: float, split: Split) -> int | None:
+    """The real frame a planned pose at ``index`` is snapped to on a dense capture: a midpoint to the
+    ``between`` frame nearest it in its gap, an extrapolation to the ``margin`` frame nearest it beyond
+    the same end input; None when there is none (or on a sparse capture)."""
+    if split.kind != "dense":
+        return None
+    lo = max([i for i in split.inputs if i <= index], default=None)
+    hi = min([i for i in split.inputs if i >= index], default=None)
+    if lo is None:
+        cands = [i for i in split.margin if i < split.inputs[0]]
+    elif hi is None:
+        cands = [i for i in split.margin if i > split.inputs[-1]]
+    else:
+        cands = [i for i in split.between if lo < i < hi]
+    return min(cands, key=lambda i: (abs(i - index), i)) if cands else None
+
+
 def _plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
-    """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints)."""
+    """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints and
+    extrapolations)."""
     planned = plan_poses(inputs, PlanConfig(n_mid=cfg.n_mid, n_extra=cfg.n_extra, order="capture"))
     info: list[dict] = []
     out: list[Frame] = []
-    between = set(split.between)
     for f in planned:
-        rec = {"name": f.name, "planned_index": f.index, "truth": None}
-        lo = max([i for i in split.inputs if i <= f.index], default=None)
-        hi = min([i for i in split.inputs if i >= f.index], default=None)
-        if split.kind == "dense" and lo is not None and hi is not None and lo < hi:
-            cands = [i for i in between if lo < i < hi]
-            if cands:
-                j = min(cands, key=lambda i: (abs(i - f.index), i))
-                real = full.frames[j]
-                rec.update(truth=j, truth_name=real.name,
-                           snap_move=float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale()),
-                           snap_turn_deg=float(rotation_angle_deg(real.pose.R, f.pose.R)))
-                f = _pose_only(real, name=f"novel_at_{real.name}", synthetic=True)
+        rec = {"name": f.name, "planned_index": f.index, "group": split.group(f.index), "truth": None}
+        j = _snap(f.index, split)
+        if j is not None:
+            real = full.frames[j]
+            rec.update(truth=j, truth_name=real.name,
+                       snap_move=float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale()),
+                       snap_turn_deg=float(rotation_angle_deg(real.pose.R, f.pose.R)))
+            f = _pose_only(real, name=f"novel_at_{real.name}", synthetic=True)
         out.append(f)
         info.append(rec)
     return out, info
@@ -328,7 +385,7 @@ class _SceneEval:
     scored: list[int]  # held-out frames that are scored
     inputs: Scene
     planned: list[Frame]
-    mid_truth: dict[int, int]  # planned pose k -> the real frame at it (dense captures)
+    mid_truth: dict[int, int]  # planned pose k -> the real frame at it (dense: midpoints and extrapolations)
     res: dict
     out_dir: Path | None = None
     ex_dir: Path | None = None
@@ -357,7 +414,7 @@ class _SceneEval:
         for k, i in enumerate(idx):
             frame = self.full.frames[i]
             truth = _load_truth(frame, self.full.image_size(i))
-            rows.append(FrameScore(frame.name, i, **_score(images[k], truth, self.cfg.lpips)))
+            rows.append(FrameScore(frame.name, i, **_score(images[k], truth, self.cfg.lpips), group=self.split.group(i)))
             if held_out and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
                 self._save_example(frame.name, label, images[k], truth)
         return ScoredSet(rows, seed=seed, views=views)
@@ -388,6 +445,8 @@ def _protocol(ev: _SceneEval, plan_info: list[dict]) -> dict:
         "held_out": [full.frames[i].name for i in split.eval], "held_out_index": split.eval,
         "scored": [full.frames[i].name for i in ev.scored],
         "inputs": [full.frames[i].name for i in split.inputs], "inputs_index": split.inputs,
+        "extrapolated": [full.frames[i].name for i in ev.scored if split.group(i) == EXTRAPOLATED],
+        "margin": [full.frames[i].name for i in split.margin],
         "image_size": list(full.image_size(0)), "planned": plan_info,
         "camera_frames": {
             "inputs": [f.pose.as_vector().tolist() for f in ev.inputs.frames],
@@ -423,53 +482,64 @@ def _start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None) -> _SceneE
     return ev
 
 
+def _planned_scores(ev: _SceneEval, images: np.ndarray, label: str, seed: int | None = None) -> dict[str, ScoredSet]:
+    """The planned views that have a real photo at their pose, scored: {"midpoints": ..., "extrapolations":
+    ...} (a set only where it has frames)."""
+    if not ev.mid_truth:
+        return {}
+    scored = ev.score(images[list(ev.mid_truth)], label, ev.mid_targets, held_out=False, seed=seed)
+    sets = {"midpoints": scored.only(INTERPOLATED), "extrapolations": scored.only(EXTRAPOLATED)}
+    return {k: v for k, v in sets.items() if v.frames}
+
+
 def _network_synthesis(ev: _SceneEval, network: Callable[[Scene, int], SynthFn] | None) -> None:
-    """Train the network per seed on the inputs; score it at the held-out poses and the midpoints."""
+    """Train the network per seed on the inputs; score it at the held-out poses and the planned poses
+    with a real photo (midpoints and extrapolations)."""
     if network is None:
         try:
             network = network_factory(ev.cfg)
         except SparselfError as e:
             ev.res["notes"].append(str(e))
             return
-    held, mids = SeededSets(), SeededSets()
+    held, planned = SeededSets(), {k: SeededSets() for k in PLANNED_SECTIONS}
     first = ev.cfg.first_seed
     for seed in tqdm(range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
         synth = network(ev.inputs, seed)
         imgs = synth(ev.inputs, ev.targets)
         held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
         ev.net_planned.append(synth(ev.inputs, ev.planned))
-        if ev.mid_truth:
-            pimgs = ev.net_planned[-1][list(ev.mid_truth)]
-            mids.per_seed.append(ev.score(pimgs, NETWORK, ev.mid_targets, held_out=False, seed=seed))
+        for sec, scored in _planned_scores(ev, ev.net_planned[-1], NETWORK, seed).items():
+            planned[sec].per_seed.append(scored)
     ev.res["view_synthesis"][NETWORK] = held.to_json()
-    if mids.per_seed:
-        ev.res["midpoints"][NETWORK] = mids.to_json()
+    for sec, sets in planned.items():
+        if sets.per_seed:
+            ev.res[sec][NETWORK] = sets.to_json()
 
 
 def _baseline_synthesis(ev: _SceneEval, baselines: dict[str, SynthFn]) -> None:
-    """Each baseline at the held-out poses and the midpoints (and the planned poses it densifies)."""
-    vs, mids = ev.res["view_synthesis"], ev.res["midpoints"]
+    """Each baseline at the held-out poses and the planned poses with a real photo (and the planned poses
+    it densifies)."""
+    vs = ev.res["view_synthesis"]
     for bname, fn in tqdm(list(baselines.items()), desc=f"{ev.name}: baselines", disable=not ev.cfg.progress, leave=False):
         try:
             vs[bname] = ev.score(fn(ev.inputs, ev.targets), bname, ev.scored).to_json()
             if bname in ev.cfg.densify_baselines or ev.mid_truth:
                 ev.baseline_planned[bname] = fn(ev.inputs, ev.planned)
-            if ev.mid_truth:
-                pimgs = ev.baseline_planned[bname][list(ev.mid_truth)]
-                mids[bname] = ev.score(pimgs, bname, ev.mid_targets, held_out=False).to_json()
+                for sec, scored in _planned_scores(ev, ev.baseline_planned[bname], bname).items():
+                    ev.res[sec][bname] = scored.to_json()
         except Exception as e:  # one broken baseline must not hide the others
             log.warning("%s: baseline %s failed: %s", ev.name, bname, e)
             vs[bname] = {"error": f"{type(e).__name__}: {e}"}
 
 
 def _oracle_scene(ev: _SceneEval) -> Scene:
-    """The inputs plus the real photos at the snapped midpoints (extrapolations keep the network's
-    seed-0 views, where it ran)."""
+    """The inputs plus the real photos at the snapped planned poses (planned poses without one, e.g.
+    extrapolations with no extrapolation margin, keep the network's seed-0 views, where it ran)."""
     fill = ev.net_planned[0] if ev.net_planned else None
     imgs, extra = [], []
     for k, f in enumerate(ev.planned):
         if k in ev.mid_truth:
-            # a real, non-held-out photo at exactly this pose (not an evaluation frame)
+            # a real, non-held-out photo at exactly this pose (a between or margin frame, never an evaluation frame)
             imgs.append(ev.full.load(ev.mid_truth[k]))
             extra.append(f)
         elif fill is not None:
@@ -565,7 +635,8 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
     t_start = time.perf_counter()
     ev = _start_scene(scene, cfg, out_dir)
     ev.on_partial = on_partial
-    ev.res["view_synthesis"], ev.res["midpoints"] = {}, {}
+    ev.res["view_synthesis"] = {}
+    ev.res.update({sec: {} for sec in PLANNED_SECTIONS})
     t0 = time.perf_counter()
     _network_synthesis(ev, network)
     ev.res["timings"]["network"] = time.perf_counter() - t0

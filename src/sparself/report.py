@@ -16,7 +16,7 @@ import matplotlib
 import numpy as np
 
 from .results import METRICS as METRIC_NAMES
-from .results import NETWORK, finite, mean_of
+from .results import EXTRAPOLATED, INTERPOLATED, NETWORK, finite, mean_of
 from .scene import load_image
 
 log = logging.getLogger(__name__)
@@ -212,6 +212,29 @@ def _label(s: dict, r: str | None = None) -> str:
     return s["name"]
 
 
+def _group_rows(s: dict, label: str) -> list[tuple[str, str | None]]:
+    """(row label, group) for a scene's rows: all scored held-out frames, then, where some lie beyond the
+    first or last input, the interpolated and the extrapolated ones apart."""
+    n_ex = len(s.get("protocol", {}).get("extrapolated", []))
+    if not n_ex:
+        return [(label, None)]
+    n_in = len(s["protocol"].get("scored", [])) - n_ex
+    return [(label, None), (f"{s['name']}: interpolated ({n_in})", INTERPOLATED),
+            (f"{s['name']}: extrapolated ({n_ex})", EXTRAPOLATED)]
+
+
+def _average_rows(cols: dict, cells, ok: list[dict]) -> list[list[str]]:
+    """'Average' rows over scenes: of all frames, and per group where two or more scenes have groups (one
+    scene's rows would only repeat). ``cols``: group -> one list of values per column; ``cells(values)``:
+    the row's cells of one column."""
+    grouped = sum(len(_group_rows(s, "")) > 1 for s in ok) > 1
+    rows = []
+    for g, label in ((None, "Average"), (INTERPOLATED, "Average: interpolated"), (EXTRAPOLATED, "Average: extrapolated")):
+        if g in cols and (g is None or grouped):
+            rows.append([label] + [c for vals in cols[g] for c in cells(vals)])
+    return rows
+
+
 @dataclass
 class _Ctx:
     """What every section of the report reads: the results, the scenes that ran, the reconstructors,
@@ -260,9 +283,13 @@ def _protocol_section(doc: _Doc, c: _Ctx) -> None:
           "their pixels are decoded only in the scoring step (scene readers may read image headers for sizes).")
     doc.ul([
         f"Dense captures: every {settings.get('holdout_every', 8)}th interior frame is held out (LLFF-style, "
-        f"first and last frames excluded); N = {settings.get('inputs', 25)} evenly spaced frames of the rest are "
-        "the sparse input. Planned midpoints are snapped to the real (non-held-out) photo nearest the planned "
-        "pose in their gap, which is the ground truth for midpoint view synthesis and the oracle's training image.",
+        f"first and last frames excluded); an extrapolation margin of frames is kept beyond each end (auto: one "
+        f"input spacing, at least {settings.get('holdout_every', 8) + 1} frames; never inputs) and "
+        f"N = {settings.get('inputs', 25)} evenly spaced frames of the rest between the margins are the sparse input. "
+        "Planned midpoints are snapped to the real (non-held-out) photo nearest the planned pose in their gap, "
+        "planned extrapolations to the nearest one in the margin beyond their end input: the ground truth for "
+        "view synthesis at planned poses and the oracle's training images. Held-out frames in the margins are "
+        "scored as extrapolated views, apart from the interpolated ones (rows 'extrapolated' / 'interpolated').",
         f"Sparse captures (too few frames for the above, e.g. 16-view Middlebury rings): every "
         f"{settings.get('sparse_holdout_every', 2)}nd interior frame, from the second on, is held out and the rest are "
         "the inputs. No oracle is run there (the only real frames between inputs are the held-out ones), and "
@@ -271,8 +298,9 @@ def _protocol_section(doc: _Doc, c: _Ctx) -> None:
         f"Densification: each reconstructor is fitted on the N inputs and on N + {settings.get('n_mid', 8)} "
         f"midpoints + {settings.get('n_extra', 2)} extrapolations synthesized by sparself (per seed) and by the "
         "densify baselines; all render the held-out poses.",
-        "Oracle: the same reconstruction with the real photos at the snapped midpoint poses (extrapolations "
-        "keep sparself's seed-0 views, as no real photo exists there). Share of oracle gain = "
+        "Oracle: the same reconstruction with the real photos at the snapped planned poses (a planned pose "
+        "without a real photo, e.g. an extrapolation with no margin, keeps sparself's seed-0 view). "
+        "Share of oracle gain = "
         "(PSNR(N+synth) − PSNR(N)) / (PSNR(oracle) − PSNR(N)).",
         f"sparself numbers are mean ± std over {settings.get('seeds', 3)} network seed(s) of the per-scene means.",
     ])
@@ -303,22 +331,23 @@ def _densification_tables(doc: _Doc, c: _Ctx) -> None:
         header = ["Scene"]
         for r in c.recons:
             header += [f"{r} N", f"{r} N+synth", f"{r} change"]
-        rows, cols = [], {r: ([], []) for r in c.recons}
+        rows, cols = [], {}
         for s in c.ok:
-            row = [s["name"]]
-            for r in c.recons:
-                d = s["densification"].get(r, {})
-                a, _ = mean_of(d.get("base"), metric)
-                b, sd = mean_of(d.get(NETWORK), metric)
-                cols[r][0].append(a)
-                cols[r][1].append(b)
-                row += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, sd, lpips_ok=lp), _change(a, b, metric, lp)]
-            rows.append(row)
-        avg = ["Average"]
-        for r in c.recons:
-            a, b = _avg(cols[r][0]), _avg(cols[r][1])
-            avg += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, lpips_ok=lp), _change(a, b, metric, lp)]
-        rows.append(avg)
+            for label, g in _group_rows(s, s["name"]):
+                row, gcols = [label], cols.setdefault(g, [([], []) for _ in c.recons])
+                for r, col in zip(c.recons, gcols):
+                    d = s["densification"].get(r, {})
+                    a, _ = mean_of(d.get("base"), metric, g)
+                    b, sd = mean_of(d.get(NETWORK), metric, g)
+                    col[0].append(a)
+                    col[1].append(b)
+                    row += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, sd, lpips_ok=lp), _change(a, b, metric, lp)]
+                rows.append(row)
+
+        def cells(col):
+            a, b = _avg(col[0]), _avg(col[1])
+            return [fmt(metric, a, lpips_ok=lp), fmt(metric, b, lpips_ok=lp), _change(a, b, metric, lp)]
+        rows += _average_rows(cols, cells, c.ok)
         doc.h(3, mlabel)
         doc.table(header, rows)
 
@@ -329,6 +358,14 @@ def _share_cell(d: dict) -> str:
         return f"instrument failed (oracle {gain:+.2f} dB vs N)"
     return (f"{100 * sh:.0f}%" if sh is not None else
             (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–"))
+
+
+def _group_share_cell(d: dict, group: str) -> str:
+    """The oracle share on one group's frames (where the instrument holds and the gain is measurable)."""
+    b, o, s = (mean_of(d.get(k), "psnr", group)[0] for k in ("base", "oracle", NETWORK))
+    if str(d.get("instrument", "ok")).startswith("failed") or None in (b, o, s) or o - b < 0.1:
+        return "–"
+    return f"{100 * (s - b) / (o - b):.0f}%"
 
 
 def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
@@ -352,8 +389,10 @@ def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
             rows = []
             for s in c.ok:
                 d = s["densification"].get(r, {})
-                row = [_label(s, r)] + [fmt(metric, *mean_of(d.get(k), metric), lpips_ok=c.lp) for k in order]
-                rows.append(row + ([_share_cell(d)] if metric == "psnr" else []))
+                for label, g in _group_rows(s, _label(s, r)):
+                    row = [label] + [fmt(metric, *mean_of(d.get(k), metric, g), lpips_ok=c.lp) for k in order]
+                    share = _share_cell(d) if g is None else _group_share_cell(d, g)
+                    rows.append(row + ([share] if metric == "psnr" else []))
             doc.p(mlabel)
             doc.table(header, rows)
 
@@ -367,31 +406,36 @@ def _methods(ok: list[dict]) -> list[str]:
     return methods
 
 
+PLANNED_TABLES = (
+    ("midpoints", "View synthesis at midpoint poses (real photos between inputs; dense captures only)"),
+    ("extrapolations", "View synthesis at extrapolated planned poses (t = 1.2 past the end inputs, snapped to "
+                       "the real photos kept beyond them; dense captures only)"))
+
+
 def _view_synthesis_tables(doc: _Doc, c: _Ctx) -> None:
     doc.h(2, "View synthesis at held-out poses (sparself vs baselines)")
     methods, lp = _methods(c.ok), c.lp
     for metric, mlabel in METRICS:
-        rows, cols = [], {m: [] for m in methods}
+        rows, cols = [], {}
         for s in c.ok:
-            row = [s["name"]]
-            for m in methods:
-                a, sd = mean_of(s["view_synthesis"].get(m), metric)
-                cols[m].append(a)
-                row.append(fmt(metric, a, sd, lpips_ok=lp))
-            rows.append(row)
-        rows.append(["Average"] + [fmt(metric, _avg(cols[m]), lpips_ok=lp) for m in methods])
+            for label, g in _group_rows(s, s["name"]):
+                row, gcols = [label], cols.setdefault(g, [[] for _ in methods])
+                for m, col in zip(methods, gcols):
+                    a, sd = mean_of(s["view_synthesis"].get(m), metric, g)
+                    col.append(a)
+                    row.append(fmt(metric, a, sd, lpips_ok=lp))
+                rows.append(row)
+        rows += _average_rows(cols, lambda col: [fmt(metric, _avg(col), lpips_ok=lp)], c.ok)
         doc.p(mlabel)
         doc.table(["Scene"] + methods, rows)
-    if any(s.get("midpoints") for s in c.ok):
-        doc.h(3, "View synthesis at midpoint poses (real photos between inputs; dense captures only)")
-        for metric, mlabel in METRICS:
-            rows = []
-            for s in c.ok:
-                if s.get("midpoints"):
-                    rows.append([s["name"]] + [fmt(metric, *mean_of(s["midpoints"].get(m), metric), lpips_ok=lp)
-                                               for m in methods])
-            doc.p(mlabel)
-            doc.table(["Scene"] + methods, rows)
+    for sec, title in PLANNED_TABLES:
+        if any(s.get(sec) for s in c.ok):
+            doc.h(3, title)
+            for metric, mlabel in METRICS:
+                rows = [[s["name"]] + [fmt(metric, *mean_of(s[sec].get(m), metric), lpips_ok=lp) for m in methods]
+                        for s in c.ok if s.get(sec)]
+                doc.p(mlabel)
+                doc.table(["Scene"] + methods, rows)
 
 
 def _figures(doc: _Doc, c: _Ctx) -> None:
