@@ -40,7 +40,7 @@ def test_evenly_spaced_inputs_and_midpoint_truth():
 
 def test_make_split_dense_and_sparse():
     cfg = EvalConfig(inputs=25)
-    d = make_split(184, cfg)
+    d = make_split(184, replace(cfg, extrapolation_margin=0))  # the margin: test_evaluate_extrapolation.py
     assert d.kind == "dense" and len(d.inputs) == 25 and d.eval == holdout_indices(184, 8)
     assert d.inputs[0] == 0 and d.inputs[-1] == 183
     assert not set(d.eval) & set(d.inputs) and not set(d.eval) & set(d.between)
@@ -138,9 +138,11 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
     # seed-dependent synthesizer: 2 seeds give a real spread
     assert s["view_synthesis"]["sparself"]["summary"]["psnr"]["n_seeds"] == 2
     assert s["view_synthesis"]["sparself"]["summary"]["psnr"]["std"] > 0
-    # midpoint truth: snapped to real non-held-out frames strictly between inputs
+    # planned truth: snapped to real non-held-out frames strictly between inputs (2 midpoints) or beyond the
+    # last one (1 extrapolation)
     truths = [p["truth"] for p in s["protocol"]["planned"] if p["truth"] is not None]
-    assert len(truths) == 2 and not set(truths) & set(split.eval) and not set(truths) & set(split.inputs)
+    assert len(truths) == 3 and not set(truths) & set(split.eval) and not set(truths) & set(split.inputs)
+    assert sum(t > split.inputs[-1] for t in truths) == 1
     # blend at held-out poses beats nothing-better-than-nearest? both are scored, with finite PSNR
     assert np.isfinite(s["view_synthesis"]["blend"]["summary"]["psnr"]["mean"])
     # outputs: JSON with settings + versions, report with the tables and figures
@@ -158,14 +160,15 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
 def test_a_failing_scene_is_reported_and_the_others_go_on(tmp_path):
     good = _capture(tmp_path / "good")
     broken = _capture(tmp_path / "broken")
-    broken.frames[0].path.write_bytes(b"not a png")  # an input frame: synthesis cannot run
+    first_input = broken.frames[make_split(N_FRAMES, _tiny_cfg()).inputs[0]]
+    first_input.path.write_bytes(b"not a png")  # an input frame: synthesis cannot run
     hooks, _ = _hooks()
     hooks["reconstructors"] = {"nearest": _NearestRenderer}
     out = tmp_path / "out"
     res = ev.evaluate([broken, tmp_path / "no_such_scene", good], out, _tiny_cfg(seeds=1), **hooks)
     status = [s["status"] for s in res["scenes"]]
     assert status == ["failed", "failed", "ok"]
-    assert "img000.png" in res["scenes"][0]["error"]
+    assert first_input.name in res["scenes"][0]["error"]
     md = (out / "report.md").read_text()
     assert "Scenes that failed" in md and "no_such_scene" in md
 
