@@ -62,7 +62,7 @@ from .plot import plot_cameras
 from .recon import get_reconstructor
 from .report import safe_name as _safe
 from .report import write_report
-from .results import EXTRAPOLATED, INTERPOLATED, NETWORK, FrameScore, ScoredSet, SeededSets
+from .results import EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, FrameScore, ScoredSet, SeededSets
 from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
 from .synthesize import densify_scene, synthesizer
 from .train import TrainConfig, train
@@ -71,7 +71,6 @@ log = logging.getLogger(__name__)
 
 SynthFn = Callable[[Scene, list], np.ndarray]  # synthesize(scene, targets) -> (T, H, W, 3)
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
-MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported
 PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
 
 

@@ -16,7 +16,7 @@ import matplotlib
 import numpy as np
 
 from .results import METRICS as METRIC_NAMES
-from .results import EXTRAPOLATED, INTERPOLATED, NETWORK, finite, mean_of
+from .results import EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, finite, mean_of
 from .scene import load_image
 
 log = logging.getLogger(__name__)
@@ -363,7 +363,7 @@ def _share_cell(d: dict) -> str:
 def _group_share_cell(d: dict, group: str) -> str:
     """The oracle share on one group's frames (where the instrument holds and the gain is measurable)."""
     b, o, s = (mean_of(d.get(k), "psnr", group)[0] for k in ("base", "oracle", NETWORK))
-    if str(d.get("instrument", "ok")).startswith("failed") or None in (b, o, s) or o - b < 0.1:
+    if str(d.get("instrument", "ok")).startswith("failed") or None in (b, o, s) or o - b < MIN_ORACLE_GAIN_DB:
         return "–"
     return f"{100 * (s - b) / (o - b):.0f}%"
 

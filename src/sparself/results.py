@@ -23,6 +23,7 @@ from .metrics import summarize
 NETWORK = "sparself"  # the CNN-LSTM's name in results and reports
 METRICS = ("psnr", "ssim", "lpips")
 INTERPOLATED, EXTRAPOLATED = "interpolated", "extrapolated"
+MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported
 GROUPS = (INTERPOLATED, EXTRAPOLATED)
 
 
