@@ -180,6 +180,8 @@ def test_report_rows_for_both_groups_and_seed_merge_keeps_them(tmp_path):
     assert "| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | 26.02 | 100% |" in md
     assert "View synthesis at extrapolated planned poses" in md and "| cap | 16.99 ± 3.01 | 20.00 |" in md
     assert "extrapolated" in (out / "report.html").read_text()
+    assert "cap: view synthesis of extrapolated frames: sparself (16.99 dB) does not beat the best baseline, fake " \
+        "(20.00 dB)." in md
     # batch evaluate: one unit per seed, merged; the groups come back as mean ± std over the seeds
     one = {s: ev.evaluate_scene(scene, _tiny_cfg(seeds=1, first_seed=s), None, **_hooks([])) for s in (0, 1)}
     merged = batch.merge_seeds([(s, r, Path(f"seed{s}")) for s, r in one.items()])

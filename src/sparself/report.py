@@ -520,18 +520,25 @@ def conclusions(results: dict) -> list[str]:
                 who = "the real photos (oracle)" if k == "oracle" else f"{k}-synthesized views"
                 out.append(f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average "
                            f"over the {len(diffs)} scene(s) where both ran.")
-    vs = [(s["name"], s.get("view_synthesis", {})) for s in ok]
-    for name, v in vs:
-        net, _ = mean_of(v.get(NETWORK), "psnr")
-        base = {k: mean_of(e, "psnr")[0] for k, e in v.items() if k != NETWORK and "summary" in e}
+    out += [line for s in ok for line in _view_synthesis_conclusions(s)]
+    return out or ["No scene produced results."]
+
+
+def _view_synthesis_conclusions(s: dict) -> list[str]:
+    """sparself vs the best baseline at the held-out poses: all of them, then the interpolated and the
+    extrapolated ones apart where the scene has both."""
+    out, v = [], s.get("view_synthesis", {})
+    for group, what in ((None, ""), (INTERPOLATED, " of interpolated frames"), (EXTRAPOLATED, " of extrapolated frames")):
+        net, _ = mean_of(v.get(NETWORK), "psnr", group)
+        base = {k: mean_of(e, "psnr", group)[0] for k, e in v.items() if k != NETWORK and "summary" in e}
         base = {k: x for k, x in base.items() if x is not None}
         if net is None or not base:
             continue
         best = max(base, key=base.get)
         rel = "beats" if net > base[best] else "does not beat"
-        out.append(f"{name}: view synthesis: sparself ({net:.2f} dB) {rel} the best baseline, {best} "
+        out.append(f"{s['name']}: view synthesis{what}: sparself ({net:.2f} dB) {rel} the best baseline, {best} "
                    f"({base[best]:.2f} dB).")
-    return out or ["No scene produced results."]
+    return out
 
 
 def safe_name(name: str) -> str:
