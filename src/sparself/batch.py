@@ -46,7 +46,7 @@ from .pipeline import densify
 from .plan import PlanConfig
 from .progress import show_progress
 from .report import safe_name, write_densify_report, write_report
-from .results import NETWORK, FrameScore, ScoredSet, SeededSets
+from .results import NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet, SeededSets
 from .train import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -624,10 +624,12 @@ def merge_seeds(parts: list[tuple[int, dict, Path]]) -> dict:
                     merged.setdefault(sec, {}).setdefault(NETWORK, {"per_seed": []})["per_seed"] += \
                         s[sec][NETWORK]["per_seed"]
             for r, d in s.get("densification", {}).items():
-                if NETWORK in d:
-                    m = merged.setdefault("densification", {}).setdefault(r, {})
-                    m.setdefault(NETWORK, {"per_seed": [], "views": d[NETWORK]["views"]})["per_seed"] += \
-                        d[NETWORK]["per_seed"]
+                for key in (NETWORK, NETWORK_WEIGHTED):  # a unit's weighted fit records its own chosen weight
+                    if "per_seed" in d.get(key, {}):
+                        m = merged.setdefault("densification", {}).setdefault(r, {})
+                        if "per_seed" not in m.get(key, {}):  # absent, or the first unit's failure
+                            m[key] = {"per_seed": [], "views": d[key].get("views")}
+                        m[key]["per_seed"] += d[key]["per_seed"]
         for frame, imgs in s.get("examples", {}).items():
             ex = merged["examples"].setdefault(frame, {})
             for k, v in imgs.items():  # the ground truth and base fits are the same in every seed's folder
@@ -637,7 +639,7 @@ def merge_seeds(parts: list[tuple[int, dict, Path]]) -> dict:
     if merged.get("camera_plot"):
         merged["camera_plot"] = str(parts[0][2] / merged["camera_plot"])
     for entry in [merged.get(sec, {}).get(NETWORK) for sec in SEEDED_SECTIONS] + \
-            [d.get(NETWORK) for d in merged.get("densification", {}).values()]:
+            [d.get(k) for d in merged.get("densification", {}).values() for k in (NETWORK, NETWORK_WEIGHTED)]:
         if entry and entry.get("per_seed"):
             again = _seeded(entry["per_seed"]).to_json()  # the summary, and per group where there are two
             entry.update({k: again[k] for k in ("summary", "groups") if k in again})

@@ -62,16 +62,19 @@ from .plot import plot_cameras
 from .recon import get_reconstructor
 from .report import safe_name as _safe
 from .report import write_report
-from .results import EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, FrameScore, ScoredSet, SeededSets
+from .results import (EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet,
+                      SeededSets)
 from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
-from .synthesize import densify_scene, synthesizer
+from .synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
 
 log = logging.getLogger(__name__)
 
-SynthFn = Callable[[Scene, list], np.ndarray]  # synthesize(scene, targets) -> (T, H, W, 3)
+# synthesize(scene, targets) -> (T, H, W, 3), or Synthesized (images + per-pixel confidence)
+SynthFn = Callable[[Scene, list], "np.ndarray | Synthesized"]
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
 PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
+VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight
 
 
 # what --quick changes
@@ -109,6 +112,13 @@ class EvalConfig:
     max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; "
                                   "auto: all)")
     oracle: bool = option(True, "skip the oracle densification (real photos at the planned poses)")
+    weighted: bool = option(True, "skip 'N + sparself, weighted': each reconstructor refitted on N + the network's "
+                                  "views with their confidence maps as per-pixel loss weights and a synthetic-frame "
+                                  "weight chosen on input views only")
+    synthetic_weights: tuple[float, ...] = option(
+        (0.25, 0.5, 1.0), "synthetic-frame loss weights tried for 'N + sparself, weighted': each is fitted on the "
+        f"inputs minus every {VALIDATION_EVERY}th interior one (+ the first seed's views), the best PSNR on those "
+        "held-back inputs wins (one fit per weight and reconstructor, plus one refit per seed)")
     examples: int = option(1, "held-out frames per scene saved as image grids for the report")
     lpips: bool = option(True, "skip LPIPS")
     progress: bool = option(True, "progress bars", cli=False)
@@ -127,6 +137,8 @@ class EvalConfig:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
             raise ConfigError(f"extrapolation_margin must not be negative, got {self.extrapolation_margin}")
+        if self.weighted and (not self.synthetic_weights or min(self.synthetic_weights) < 0):
+            raise ConfigError(f"synthetic_weights must be one or more weights >= 0, got {self.synthetic_weights}")
 
     @classmethod
     def quick(cls, **kw) -> "EvalConfig":
@@ -280,7 +292,7 @@ def versions() -> dict:
 def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
     """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.train.train`` with
     ``cfg.train`` (seed, size and epochs from the evaluation) on the inputs, in a temporary run folder, and
-    returns the bound ``synthesize(scene, targets)``."""
+    returns the bound ``synthesize(scene, targets) -> Synthesized`` (images and confidence)."""
     # resolved (and warned about) once, not once per scene and seed
     weights = cfg.train.weights if cfg.train.weights is not None else default_weights()
     base = replace(cfg.train, size=cfg.size, weights=weights,
@@ -289,7 +301,7 @@ def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
     def make(scene: Scene, seed: int) -> SynthFn:
         with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
             run = train(scene, Path(tmp) / "run", replace(base, seed=seed), progress=cfg.progress)
-        return synthesizer(run)
+        return lambda sc, targets, **_: synthesize_with_confidence(run, sc, targets)
 
     return make
 
@@ -389,6 +401,7 @@ class _SceneEval:
     out_dir: Path | None = None
     ex_dir: Path | None = None
     net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
+    net_conf: list[np.ndarray | None] = field(default_factory=list)  # their confidence (T, H, W), per seed
     baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
     on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step
 
@@ -504,15 +517,22 @@ def _network_synthesis(ev: _SceneEval, network: Callable[[Scene, int], SynthFn] 
     first = ev.cfg.first_seed
     for seed in tqdm(range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
         synth = network(ev.inputs, seed)
-        imgs = synth(ev.inputs, ev.targets)
+        imgs, _ = _images_and_confidence(synth(ev.inputs, ev.targets))
         held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
-        ev.net_planned.append(synth(ev.inputs, ev.planned))
-        for sec, scored in _planned_scores(ev, ev.net_planned[-1], NETWORK, seed).items():
+        imgs, conf = _images_and_confidence(synth(ev.inputs, ev.planned))
+        ev.net_planned.append(imgs)
+        ev.net_conf.append(conf)
+        for sec, scored in _planned_scores(ev, imgs, NETWORK, seed).items():
             planned[sec].per_seed.append(scored)
     ev.res["view_synthesis"][NETWORK] = held.to_json()
     for sec, sets in planned.items():
         if sets.per_seed:
             ev.res[sec][NETWORK] = sets.to_json()
+
+
+def _images_and_confidence(out) -> tuple[np.ndarray, np.ndarray | None]:
+    """A synthesizer's answer as (images, confidence or None): the network's is a Synthesized."""
+    return (out.images, out.confidence) if isinstance(out, Synthesized) else (np.asarray(out), None)
 
 
 def _baseline_synthesis(ev: _SceneEval, baselines: dict[str, SynthFn]) -> None:
@@ -566,7 +586,8 @@ def oracle_share(entry: dict) -> None:
     not make it worse.
 
     Sets ``instrument`` ("ok", or "failed: ..." when N + real photos (the oracle) does not beat N alone),
-    ``oracle_gain_db``, and ``oracle_share`` only when the instrument holds and the gain is measurable."""
+    ``oracle_gain_db``, and ``oracle_share`` (``oracle_share_weighted`` for "N + sparself, weighted") only
+    when the instrument holds and the gain is measurable."""
     if "oracle" not in entry or "base" not in entry:
         return
     b = entry["base"]["summary"]["psnr"]["mean"]
@@ -574,10 +595,11 @@ def oracle_share(entry: dict) -> None:
     entry["oracle_gain_db"] = float(o - b)
     entry["instrument"] = "ok" if o > b else (
         f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
-    if NETWORK in entry:
-        s = entry[NETWORK]["summary"]["psnr"]["mean"]
-        # a share of a gain the oracle does not show is noise, not a fraction
-        entry["oracle_share"] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
+    for key, share in ((NETWORK, "oracle_share"), (NETWORK_WEIGHTED, "oracle_share_weighted")):
+        if "summary" in entry.get(key, {}):
+            s = entry[key]["summary"]["psnr"]["mean"]
+            # a share of a gain the oracle does not show is noise, not a fraction
+            entry[share] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
 
 
 def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
@@ -587,7 +609,7 @@ def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], ent
     for key, seed, sc in tqdm(_densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False):
         renderer = fit(sc)
         entry.setdefault("backend", getattr(renderer, "backend", None))
-        imgs = np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
+        imgs = _render_targets(ev, renderer)
         label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
         scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
         if seed is None:
@@ -597,8 +619,70 @@ def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], ent
             entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append(scored.to_json())
     if net.per_seed:
         entry[NETWORK] = net.to_json()
+    if ev.cfg.weighted and ev.net_planned:
+        try:
+            _weighted_fits(ev, rname, fit, entry)
+        except Exception as e:  # the plain results stand without it
+            log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
+            entry[NETWORK_WEIGHTED] = {"error": f"{type(e).__name__}: {e}"}
     oracle_share(entry)
     entry["status"] = "ok"
+
+
+def _render_targets(ev: _SceneEval, renderer) -> np.ndarray:
+    """The renderer's images at the scored held-out poses (poses only: no pixels reach it)."""
+    return np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
+
+
+def weighted_scene(scene: Scene, planned: list[Frame], images: np.ndarray, confidence: np.ndarray | None,
+                   weight: float) -> Scene:
+    """``scene`` + synthesized frames carrying their confidence maps (None: weight only) and loss ``weight``."""
+    sc = densify_scene(scene, list(planned), np.asarray(images, np.float32), confidence)
+    return replace(sc, frames=[replace(f, weight=float(weight)) if f.synthetic else f for f in sc.frames])
+
+
+def validation_inputs(n: int) -> list[int]:
+    """Positions among n input views held back to choose the synthetic-frame weight: every
+    VALIDATION_EVERY-th interior one from the third (the middle one when that gives none).
+
+    >>> validation_inputs(25)
+    [2, 7, 12, 17, 22]
+    """
+    return list(range(2, n - 1, VALIDATION_EVERY)) or ([n // 2] if n >= 3 else [])
+
+
+def choose_weight(inputs: Scene, planned: list[Frame], images: np.ndarray, confidence: np.ndarray | None,
+                  grid: Sequence[float], fit: Callable[[Scene], object]) -> dict:
+    """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
+    synthesized views) renders those held-back *input* views best (mean PSNR; the first on ties). Reads the
+    inputs' pixels only, never a held-out photo. (The synthesized views were made from all inputs, the
+    held-back ones included, which favours larger weights somewhat.)"""
+    val = validation_inputs(len(inputs))
+    if not val:
+        raise ConfigError(f"{len(inputs)} input views leave none to choose the synthetic-frame weight on")
+    train = inputs.without(val)
+    scores = {}
+    for w in grid:
+        r = fit(weighted_scene(train, planned, images, confidence, w))
+        scores[float(w)] = float(np.mean([metrics.psnr(r.render(inputs.frames[i].pose, inputs.camera(i)),
+                                                       inputs.load(i)) for i in val]))
+    best = max(scores, key=lambda w: scores[w])
+    return {"weight": best, "validation_psnr": {str(w): v for w, v in scores.items()},
+            "validation_views": [inputs.frames[i].name for i in val], "confidence": confidence is not None}
+
+
+def _weighted_fits(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
+    """'N + sparself, weighted': per seed, the inputs + its views with their confidence as per-pixel loss
+    weights and the synthetic-frame weight :func:`choose_weight` picked on the run's first seed."""
+    choice = choose_weight(ev.inputs, ev.planned, ev.net_planned[0], ev.net_conf[0], ev.cfg.synthetic_weights, fit)
+    choice["chosen_on_seed"] = ev.cfg.first_seed
+    sets, records = SeededSets(), []
+    for k, seed in enumerate(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))):
+        sc = weighted_scene(ev.inputs, ev.planned, ev.net_planned[k], ev.net_conf[k], choice["weight"])
+        label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
+        sets.per_seed.append(ev.score(_render_targets(ev, fit(sc)), label, ev.scored, seed=seed, views=len(sc)))
+        records.append({**sets.per_seed[-1].to_json(), "selection": choice})
+    entry[NETWORK_WEIGHTED] = {**sets.to_json(), "per_seed": records}
 
 
 def _densification(ev: _SceneEval, reconstructors: dict[str, Callable[[Scene], object]] | None) -> None:

@@ -5,7 +5,7 @@ is built from the fields (:func:`add_options`, :func:`from_args`).
 
 A field made with :func:`option` becomes ``--size`` (underscores become dashes); ``choices`` restrict
 its values; a bool that defaults to True becomes ``--no-<name>``, one that defaults to False
-``--<name>``; ``bool | None`` takes auto/yes/no; a tuple of ints is comma-separated (``--holdout 3,10``).
+``--<name>``; ``bool | None`` takes auto/yes/no; a tuple of ints (or floats) is comma-separated (``--holdout 3,10``).
 ``cli=False`` keeps a field off the command line (set it from Python or a saved config).
 """
 
@@ -34,6 +34,13 @@ def _int_tuple(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
 
 
+def _float_tuple(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
 def _str_tuple(text: str) -> tuple[str, ...]:
     return tuple(x.strip() for x in text.split(",") if x.strip())
 
@@ -60,6 +67,8 @@ def _type(kind: str):
         return _int_tuple
     if kind.startswith("tuple[str"):
         return _str_tuple
+    if kind.startswith("tuple[float"):
+        return _float_tuple
     return {"int": int, "float": float, "int|None": int, "float|None": float, "bool|None": _auto_bool}.get(kind, str)
 
 

@@ -16,7 +16,7 @@ import matplotlib
 import numpy as np
 
 from .results import METRICS as METRIC_NAMES
-from .results import EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, finite, mean_of
+from .results import EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED, finite, mean_of
 from .scene import load_image
 
 log = logging.getLogger(__name__)
@@ -352,17 +352,17 @@ def _densification_tables(doc: _Doc, c: _Ctx) -> None:
         doc.table(header, rows)
 
 
-def _share_cell(d: dict) -> str:
-    sh, gain = finite(d.get("oracle_share")), finite(d.get("oracle_gain_db"))
+def _share_cell(d: dict, share: str = "oracle_share") -> str:
+    sh, gain = finite(d.get(share)), finite(d.get("oracle_gain_db"))
     if str(d.get("instrument", "ok")).startswith("failed"):  # more real photos made it worse
         return f"instrument failed (oracle {gain:+.2f} dB vs N)"
     return (f"{100 * sh:.0f}%" if sh is not None else
             (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–"))
 
 
-def _group_share_cell(d: dict, group: str) -> str:
-    """The oracle share on one group's frames (where the instrument holds and the gain is measurable)."""
-    b, o, s = (mean_of(d.get(k), "psnr", group)[0] for k in ("base", "oracle", NETWORK))
+def _group_share_cell(d: dict, group: str, key: str = NETWORK) -> str:
+    """The oracle share of ``key`` on one group's frames (where the instrument holds and the gain is measurable)."""
+    b, o, s = (mean_of(d.get(k), "psnr", group)[0] for k in ("base", "oracle", key))
     if str(d.get("instrument", "ok")).startswith("failed") or None in (b, o, s) or o - b < MIN_ORACLE_GAIN_DB:
         return "–"
     return f"{100 * (s - b) / (o - b):.0f}%"
@@ -370,7 +370,8 @@ def _group_share_cell(d: dict, group: str) -> str:
 
 def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
     """Per reconstructor: N alone, N + sparself, N + each baseline, the oracle, and the oracle share."""
-    names = {"base": "N only", NETWORK: "N + sparself", "oracle": "N + real (oracle)"}
+    names = {"base": "N only", NETWORK: "N + sparself", NETWORK_WEIGHTED: "N + sparself, weighted",
+             "oracle": "N + real (oracle)"}
     for r in c.recons:
         doc.h(3, f"{r}: sparself vs baselines vs oracle (densification)")
         backends = sorted({str(s["densification"][r]["backend"]) for s in c.ok
@@ -382,19 +383,44 @@ def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
             for k in s["densification"].get(r, {}):
                 if k not in keys and isinstance(s["densification"][r][k], dict) and "summary" in s["densification"][r][k]:
                     keys.append(k)
-        order = ["base", NETWORK] + [k for k in keys if k not in ("base", NETWORK, "oracle")] + ["oracle"]
+        first = ["base", NETWORK, NETWORK_WEIGHTED]
+        order = first + [k for k in keys if k not in first + ["oracle"]] + ["oracle"]
         order = [k for k in order if k in keys]
+        shares = [("oracle_share", NETWORK, "share of oracle gain")] + (
+            [("oracle_share_weighted", NETWORK_WEIGHTED, "share of oracle gain (weighted)")] if NETWORK_WEIGHTED in order
+            else [])
         for metric, mlabel in METRICS:
-            header = ["Scene"] + [names.get(k, f"N + {k}") for k in order] + (["share of oracle gain"] if metric == "psnr" else [])
+            header = ["Scene"] + [names.get(k, f"N + {k}") for k in order] + \
+                ([h for _, _, h in shares] if metric == "psnr" else [])
             rows = []
             for s in c.ok:
                 d = s["densification"].get(r, {})
                 for label, g in _group_rows(s, _label(s, r)):
                     row = [label] + [fmt(metric, *mean_of(d.get(k), metric, g), lpips_ok=c.lp) for k in order]
-                    share = _share_cell(d) if g is None else _group_share_cell(d, g)
-                    rows.append(row + ([share] if metric == "psnr" else []))
+                    cells = [_share_cell(d, k) if g is None else _group_share_cell(d, g, net) for k, net, _ in shares]
+                    rows.append(row + (cells if metric == "psnr" else []))
             doc.p(mlabel)
             doc.table(header, rows)
+        _weight_choices(doc, c, r)
+
+
+def _weight_choices(doc: _Doc, c: _Ctx, r: str) -> None:
+    """How 'N + sparself, weighted' chose its synthetic-frame weight: per scene and seed, the weight and the
+    PSNR of each tried weight on the held-back input views (never on held-out photos)."""
+    items = []
+    for s in c.ok:
+        for p in s["densification"].get(r, {}).get(NETWORK_WEIGHTED, {}).get("per_seed", []):
+            sel = p.get("selection") or {}
+            if "weight" in sel:
+                tried = ", ".join(f"{w}: {v:.2f} dB" for w, v in sel.get("validation_psnr", {}).items())
+                conf = "confidence maps x " if sel.get("confidence") else "no confidence maps; "
+                items.append(f"{s['name']} seed {p.get('seed')}: {conf}synthetic-frame weight {sel['weight']} "
+                             f"(chosen on seed {sel.get('chosen_on_seed')}; PSNR on held-back inputs "
+                             f"{', '.join(sel.get('validation_views', []))}: {tried})")
+    if items:
+        doc.p(f"{r}, N + sparself, weighted: each pixel of a synthesized view counts its confidence x the "
+              "synthetic-frame weight chosen by fitting without the held-back input views named below and scoring those:")
+        doc.ul(items)
 
 
 def _methods(ok: list[dict]) -> list[str]:

@@ -21,6 +21,8 @@ import numpy as np
 from .metrics import summarize
 
 NETWORK = "sparself"  # the CNN-LSTM's name in results and reports
+# its densification refit with per-pixel confidence and a synthetic-frame loss weight chosen on input views
+NETWORK_WEIGHTED = "sparself_weighted"
 METRICS = ("psnr", "ssim", "lpips")
 INTERPOLATED, EXTRAPOLATED = "interpolated", "extrapolated"
 MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported

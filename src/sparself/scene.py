@@ -117,6 +117,8 @@ class Frame:
     image: an in-memory image (H, W, 3) float32 in [0, 1], used instead of ``path`` when set
            (synthesized views before they are written).
     confidence: a synthesized view's per-pixel confidence (H, W) in [0, 1], written as ``masks/``.
+    weight: the frame's loss weight in the in-project reconstructors (in memory only; the evaluation sets it on
+            synthesized frames): each pixel counts ``weight`` x its confidence (see :meth:`Scene.pixel_weight`).
     """
 
     name: str
@@ -127,6 +129,7 @@ class Frame:
     image: np.ndarray | None = None
     synthetic: bool = False
     confidence: np.ndarray | None = None
+    weight: float = 1.0
 
 
 @dataclass
@@ -257,6 +260,20 @@ class Scene:
     def load(self, i: int) -> np.ndarray:
         """Image of frame i at its camera's size (resizing when the scene was :meth:`resized`)."""
         return self.image(i, self.image_size(i))
+
+    def pixel_weight(self, i: int) -> np.ndarray | None:
+        """Frame i's per-pixel loss weight (H, W) at its camera's size: its ``weight`` x its confidence map;
+        None when every pixel counts 1 (weight 1, no map), so reconstructors keep their plain loss."""
+        f = self.frames[i]
+        if f.confidence is None and f.weight == 1.0:
+            return None
+        w, h = self.image_size(i)
+        if f.confidence is None:
+            return np.full((h, w), f.weight, np.float32)
+        conf = np.clip(np.nan_to_num(np.asarray(f.confidence, np.float32)), 0.0, 1.0)
+        if conf.shape != (h, w):
+            conf = np.clip(resize_image(conf, (w, h)), 0.0, 1.0)
+        return (f.weight * conf).astype(np.float32)
 
     def load_all(self) -> np.ndarray:
         """(N, H, W, 3) images at the cameras' size. All frames must share one image size."""

@@ -161,6 +161,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
             log.warning("gsplat: densification strategy unavailable (%s); fitting without it", e)
             strategy = None
     images = [torch.tensor(scene.load(i), device=dev) for i in range(len(scene))]
+    weights = [None if w is None else torch.tensor(w, device=dev) for w in map(scene.pixel_weight, range(len(scene)))]
     background = torch.zeros(3, device=dev)
     mean_decay = 0.01 ** (1.0 / max(cfg.steps, 1))
     for step in tqdm(range(cfg.steps), desc="gsplat fit", disable=not cfg.progress, leave=False):
@@ -170,9 +171,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
                                      sh_deg, background, dev)
         if strategy is not None:
             strategy.step_pre_backward(params, optimizers, state, step, info)
-        gt = images[i][None]
-        l1 = (render - gt).abs().mean()
-        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim_torch(torch, render, gt))
+        loss = photometric_loss(torch, render, images[i][None], cfg.ssim_lambda, weights[i])
         loss.backward()
         if strategy is not None:
             strategy.step_post_backward(params, optimizers, state, step, info, packed=False)
@@ -211,6 +210,24 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
 
 def ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
     """Mean SSIM of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
+    return ssim_map(torch, a, b, window, sigma).mean()
+
+
+def photometric_loss(torch, render, gt, ssim_lambda: float, weight=None):
+    """The 3DGS loss (1 - lambda) L1 + lambda (1 - SSIM) of (B, H, W, 3) images. weight: per-pixel loss
+    weights (H, W) (a frame's weight x its confidence, :meth:`Scene.pixel_weight`) or None (all 1: the
+    plain loss). Weighted, each term is the mean over pixels of weight x the pixel's error, so a frame
+    of weight w counts w times a real one and a pixel of weight 0 has no gradient."""
+    if weight is None:
+        l1 = (render - gt).abs().mean()
+        return (1 - ssim_lambda) * l1 + ssim_lambda * (1 - ssim_torch(torch, render, gt))
+    l1 = (weight[None, :, :, None] * (render - gt).abs()).mean()
+    dssim = (weight[None, None] * (1 - ssim_map(torch, render, gt))).mean()
+    return (1 - ssim_lambda) * l1 + ssim_lambda * dssim
+
+
+def ssim_map(torch, a, b, window: int = 11, sigma: float = 1.5):
+    """Per-pixel SSIM (B, 3, H, W) of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
     import torch.nn.functional as F
 
     x = a.permute(0, 3, 1, 2)
@@ -225,8 +242,7 @@ def ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
     mx, my = blur(x), blur(y)
     sxx, syy, sxy = blur(x * x) - mx ** 2, blur(y * y) - my ** 2, blur(x * y) - mx * my
     c1, c2 = 0.01 ** 2, 0.03 ** 2
-    s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx ** 2 + my ** 2 + c1) * (sxx + syy + c2))
-    return s.mean()
+    return ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx ** 2 + my ** 2 + c1) * (sxx + syy + c2))
 
 
 __all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]

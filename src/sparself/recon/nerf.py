@@ -254,6 +254,31 @@ def fit_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def weighted_mse(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Weighted mean squared error of rays (R, 3) with per-ray weights (R,): sum w |e|^2 / (3 sum w); 0 when
+    every weight is 0 (such rays must not move the fit)."""
+    se = (pred - target).pow(2).sum(-1)
+    return (weight * se).sum() / (3.0 * weight.sum()).clamp_min(1e-12)
+
+
+def _training_rays(scene: Scene) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Origins, directions and colours of every pixel of every frame (R, 3), and their loss weights (R,)
+    (:meth:`Scene.pixel_weight`), or None when every pixel counts 1."""
+    origins, dirs, colors, weights = [], [], [], []
+    for i, f in enumerate(scene.frames):
+        o, d = pixel_rays(f.pose, scene.camera(i))
+        origins.append(o)
+        dirs.append(d)
+        colors.append(scene.load(i).reshape(-1, 3))
+        weights.append(scene.pixel_weight(i))
+    w_all = None
+    if any(w is not None for w in weights):
+        w_all = torch.from_numpy(np.concatenate([np.ones(len(o), np.float32) if w is None else w.reshape(-1)
+                                                 for o, w in zip(origins, weights)])).float()
+    return (torch.from_numpy(np.concatenate(origins)).float(), torch.from_numpy(np.concatenate(dirs)).float(),
+            torch.from_numpy(np.concatenate(colors)).float(), w_all)
+
+
 def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
     torch.manual_seed(cfg.seed)
     dev = fit_device(cfg.device)
@@ -261,21 +286,17 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
     near, far = cfg.bounds or scene.depth_bounds()
     near, far = float(max(near, 1e-4)), float(max(far, near * 1.05))
     centre, radius = scene_normalization(scene)
-    origins, dirs, colors = [], [], []
-    for i, f in enumerate(scene.frames):
-        o, d = pixel_rays(f.pose, scene.camera(i))
-        img = scene.load(i)
-        origins.append(o)
-        dirs.append(d)
-        colors.append(img.reshape(-1, 3))
-    o_all, d_all, c_all, centre_t = (torch.from_numpy(np.asarray(a)).float().to(dev) for a in (
-        np.concatenate(origins), np.concatenate(dirs), np.concatenate(colors), centre))
+    o_all, d_all, c_all, w_all = _training_rays(scene)
+    centre_t = torch.from_numpy(np.asarray(centre)).float().to(dev)
+    o_all, d_all, c_all = o_all.to(dev), d_all.to(dev), c_all.to(dev)
+    w_all = None if w_all is None else w_all.to(dev)
 
     # initialised on the CPU, so a seed gives the same start on every device
     field_ = _Field(tuple(cfg.levels), cfg.features, cfg.hidden).to(dev)
     with torch.no_grad():
-        # start the background at the mean image colour: rays that leave the scene see it
-        field_.background.copy_(torch.logit(c_all.mean(0).clamp(0.02, 0.98)))
+        # start the background at the mean image colour (of the pixels that count): rays that leave the scene see it
+        mean = c_all.mean(0) if w_all is None else (w_all[:, None] * c_all).sum(0) / w_all.sum().clamp_min(1e-12)
+        field_.background.copy_(torch.logit(mean.clamp(0.02, 0.98)))
     opt = torch.optim.Adam([
         {"params": list(field_.grids.parameters()), "lr": cfg.lr_grid},
         {"params": list(field_.sigma_net.parameters()) + list(field_.color_net.parameters())
@@ -288,7 +309,7 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
     for _ in tqdm(range(cfg.steps), desc="nerf fit", disable=not cfg.progress, leave=False):
         idx = torch.randint(0, n, (min(cfg.batch_rays, n),), generator=gen, device=dev)
         pred = _render_rays(field_, o_all[idx], d_all[idx], near, far, cfg.n_samples, centre_t, radius, gen)
-        loss = F.mse_loss(pred, c_all[idx])
+        loss = F.mse_loss(pred, c_all[idx]) if w_all is None else weighted_mse(pred, c_all[idx], w_all[idx])
         total = loss + cfg.tv_weight * field_.tv() if cfg.tv_weight > 0 else loss
         opt.zero_grad(set_to_none=True)
         total.backward()

@@ -293,10 +293,13 @@ class SplatRenderer:
 
 
 def _point_colors(scene: Scene, pts: np.ndarray, views: int = 8) -> np.ndarray:
-    """(P, 3) colour of each point in the first of up to ``views`` training images that sees it (0.5 else)."""
+    """(P, 3) colour of each point in the first of up to ``views`` training images that sees it (0.5 else);
+    frames of loss weight 0 are not read."""
     cols = np.full((len(pts), 3), 0.5, np.float32)
     todo = np.ones(len(pts), bool)
-    for i in np.unique(np.linspace(0, len(scene) - 1, min(views, len(scene))).round().astype(int)):
+    counted = [k for k, f in enumerate(scene.frames) if f.weight > 0]
+    for j in np.unique(np.linspace(0, len(counted) - 1, min(views, len(counted))).round().astype(int)):
+        i = counted[j]
         cam, pose = scene.camera(int(i)), scene.frames[int(i)].pose
         pc = pts @ pose.R.T + pose.tvec
         z = np.maximum(pc[:, 2], 1e-9)
@@ -398,7 +401,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
-    from .gsplat import ssim_torch
+    from .gsplat import photometric_loss
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -407,6 +410,7 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
     g = init_gaussians(scene, cfg, rng)
     opt = _make_optimizer(g, cfg, extent)
     images = [torch.from_numpy(scene.load(i)) for i in range(len(scene))]
+    weights = [None if w is None else torch.from_numpy(w) for w in map(scene.pixel_weight, range(len(scene)))]
     bg = torch.tensor(cfg.background, dtype=torch.float32)
     decay = 0.01 ** (1.0 / max(cfg.steps, 1))
     acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
@@ -418,8 +422,7 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
         deg = cfg.sh_degree if step >= cfg.sh_from * cfg.steps else 0
         img, p = render_gaussians(g, scene.frames[i].pose, cam, bg, deg)
         p.means2d.retain_grad()
-        l1 = (img - images[i]).abs().mean()
-        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim_torch(torch, img[None], images[i][None]))
+        loss = photometric_loss(torch, img[None], images[i][None], cfg.ssim_lambda, weights[i])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
