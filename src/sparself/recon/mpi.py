@@ -38,6 +38,7 @@ from ..scene import Camera, Scene, resize_image
 from ..warp import homography_warp, plane_homographies, plane_sweep
 
 log = logging.getLogger(__name__)
+MIN_BLEND_WEIGHT = 1e-3  # the least a pixel of a weighted view counts in the blend of MPIs
 
 
 @dataclass
@@ -76,12 +77,14 @@ class MpiConfig:
 
 @dataclass
 class Mpi:
-    """rgba: (D, 4, H, W) plane colours and alphas, nearest plane first; depths: (D,); K: (3, 3); pose."""
+    """rgba: (D, 4, H, W) plane colours and alphas, nearest plane first; depths: (D,); K: (3, 3); pose;
+    weight: (1, H, W) its reference view's per-pixel weight in the blend (``Scene.pixel_weight``), None: 1."""
 
     rgba: torch.Tensor
     depths: np.ndarray
     K: np.ndarray
     pose: Pose
+    weight: torch.Tensor | None = None
 
 
 def build_mpi(images: torch.Tensor, Ks: np.ndarray, w2cs: np.ndarray, pose: Pose, depths: np.ndarray,
@@ -111,16 +114,18 @@ def build_mpi(images: torch.Tensor, Ks: np.ndarray, w2cs: np.ndarray, pose: Pose
 def render_mpi(mpi: Mpi, pose: Pose, K: np.ndarray, out_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """Warp every plane into the target camera and over-composite front to back.
 
-    Returns (premultiplied colour (3, H, W), coverage (1, H, W)).
+    Returns (premultiplied colour (3, H, W), coverage (1, H, W)); with a per-pixel ``weight``, each plane
+    sample counts its reference pixel's weight in both (so the blend of MPIs trusts confident pixels more).
     """
     # p_target ~ H p_ref for the plane z = depth of the reference camera; the warp needs target -> ref
     H = plane_homographies(torch.from_numpy(K)[None], torch.from_numpy(pose.w2c())[None],
                            torch.from_numpy(mpi.K), torch.from_numpy(mpi.pose.w2c()),
                            torch.from_numpy(mpi.depths))[0]
-    warped, _ = homography_warp(mpi.rgba, torch.linalg.inv(H).float(), out_hw)  # (D, 4, H, W), zero outside
+    planes = mpi.rgba if mpi.weight is None else torch.cat([mpi.rgba, mpi.weight.expand(len(mpi.rgba), 1, -1, -1)], 1)
+    warped, _ = homography_warp(planes, torch.linalg.inv(H).float(), out_hw)  # (D, 4 or 5, H, W), zero outside
     rgb, a = warped[:, :3], warped[:, 3:4]
     trans = torch.cumprod(torch.cat([torch.ones_like(a[:1]), 1.0 - a[:-1]], 0), 0)
-    wgt = trans * a
+    wgt = trans * a if mpi.weight is None else trans * a * warped[:, 4:5]
     return (wgt * rgb).sum(0), wgt.sum(0)
 
 
@@ -168,6 +173,9 @@ class MpiRenderer:
         w2cs = np.stack([sc.frames[i].pose.w2c() for i in idx])
         images = torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy()).float()
         m = build_mpi(images, Ks, w2cs, sc.frames[r].pose, self.depths, self.cfg)
+        pw = sc.pixel_weight(r)
+        if pw is not None:  # a floor keeps a weight-0 view a gap filler where no other MPI reaches
+            m.weight = torch.from_numpy(np.maximum(pw, MIN_BLEND_WEIGHT))[None]
         self._cache[r] = m
         while len(self._cache) > max(1, self.cfg.cache_size):
             self._cache.popitem(last=False)

@@ -1,0 +1,189 @@
+"""Per-pixel loss weights in the reconstructors (a frame's weight x its confidence map): the weighted losses
+against hand-computed values, the default path unchanged, weight 0 frames ignored, and the evaluation's
+choice of the synthetic-frame weight on input views only."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from planescene import DEPTH, plane_scene
+from sparself import evaluate as ev
+from sparself.recon.gsplat import photometric_loss, ssim_torch
+from sparself.recon.nerf import fit as nerf_fit
+from sparself.recon.nerf import weighted_mse
+from sparself.recon.splat import SplatConfig
+from sparself.recon.splat import fit as splat_fit
+from sparself.scene import Frame
+
+NERF = dict(steps=12, batch_rays=128, n_samples=8, levels=(8, 16), hidden=16, progress=False, threads=1, seed=2)
+
+
+def _with_synthetic(sc, image, weight, confidence=None):
+    """sc + one synthetic frame between its first two cameras, carrying ``image``."""
+    f0, f1 = sc.frames[0], sc.frames[1]
+    pose = replace(f0.pose, tvec=(f0.pose.tvec + f1.pose.tvec) / 2)
+    new = Frame("syn", pose, 1, 0.5, image=image.astype(np.float32), synthetic=True, weight=weight,
+                confidence=confidence)
+    return replace(sc, frames=[f0, new] + sc.frames[1:])
+
+
+def test_weighted_mse_is_the_hand_computed_weighted_mean():
+    pred = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.5, 0.5, 0.5]])
+    target = torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.5, 0.5, 0.0]])
+    w = torch.tensor([1.0, 0.5, 0.0])
+    # squared errors summed over RGB: 1, 1, 0.25; (1 * 1 + 0.5 * 1 + 0 * 0.25) / (3 * 1.5)
+    assert float(weighted_mse(pred, target, w)) == pytest.approx(1.5 / 4.5)
+    assert float(weighted_mse(pred, target, torch.ones(3))) == pytest.approx(float(((pred - target) ** 2).mean()))
+    assert float(weighted_mse(pred, target, torch.zeros(3))) == 0.0
+
+
+def test_photometric_loss_weights_each_pixel():
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.rand(1, 16, 16, 3, generator=g), torch.rand(1, 16, 16, 3, generator=g)
+    plain = photometric_loss(torch, a, b, 0.2)
+    assert float(plain) == pytest.approx(float(0.8 * (a - b).abs().mean() + 0.2 * (1 - ssim_torch(torch, a, b))))
+    assert float(photometric_loss(torch, a, b, 0.2, torch.ones(16, 16))) == pytest.approx(float(plain), rel=1e-6)
+    w = torch.zeros(16, 16)
+    w[:, :8] = 0.5  # L1 only: the mean over all pixels of 0.5 x the left half's error
+    expect = 0.5 * (a - b)[:, :, :8].abs().sum() / (16 * 16 * 3)
+    assert float(photometric_loss(torch, a, b, 0.0, w)) == pytest.approx(float(expect))
+    assert float(photometric_loss(torch, a, a, 0.2, w)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_pixel_weight_is_frame_weight_times_confidence_at_the_camera_size():
+    sc = plane_scene(xs=(0.0, 0.2))
+    assert sc.pixel_weight(0) is None  # the default: every pixel counts 1
+    h, w = sc.cameras[1].height, sc.cameras[1].width
+    sc2 = _with_synthetic(sc, sc.frames[0].image, 0.5)
+    np.testing.assert_array_equal(sc2.pixel_weight(1), np.full((h, w), 0.5, np.float32))
+    conf = np.zeros((h // 2, w // 2), np.float32)
+    conf[:, w // 4:] = 1.0  # right half confident, at half resolution
+    pw = _with_synthetic(sc, sc.frames[0].image, 0.5, conf).pixel_weight(1)
+    assert pw.shape == (h, w)
+    assert np.allclose(pw[:, : w // 2 - 2], 0.0) and np.allclose(pw[:, w // 2 + 2:], 0.5)
+
+
+def _nerf_render(sc):
+    r = nerf_fit(sc, **NERF)
+    return r.render(sc.frames[0].pose, sc.cameras[1])
+
+
+def test_nerf_default_path_unchanged_and_weight_one_maps_match_it():
+    sc = plane_scene(xs=(0.0, 0.2, 0.4))
+    plain = _nerf_render(sc)
+    np.testing.assert_array_equal(plain, _nerf_render(sc))  # the seed fixes the default path
+    h, w = sc.cameras[1].height, sc.cameras[1].width
+    ones = replace(sc, frames=[replace(f, confidence=np.ones((h, w), np.float32)) for f in sc.frames])
+    assert ones.pixel_weight(0) is not None  # the weighted path, with every weight 1: the same fit
+    np.testing.assert_allclose(_nerf_render(ones), plain, atol=1e-4)
+
+
+@pytest.mark.parametrize("which", ["nerf", "splat"])
+def test_a_weight_0_synthetic_frame_does_not_move_the_fit(which):
+    sc = plane_scene(xs=(0.0, 0.2, 0.4))
+    rng = np.random.default_rng(1)
+    a = _with_synthetic(sc, rng.random(sc.frames[0].image.shape), 0.0)
+    b = _with_synthetic(sc, rng.random(sc.frames[0].image.shape), 0.0)
+    c = _with_synthetic(sc, rng.random(sc.frames[0].image.shape), 1.0)
+    if which == "nerf":
+        fit = _nerf_render
+    else:
+        sc.points = np.stack([rng.uniform(-0.7, 0.9, 300), rng.uniform(-0.5, 0.5, 300), np.full(300, DEPTH)], 1)
+        a, b, c = (replace(x, points=sc.points) for x in (a, b, c))
+        cfg = SplatConfig(steps=20, init_points=200, densify_every=5, densify_from=0.2, densify_until=0.8,
+                          max_gaussians=400, progress=False, seed=3, min_steps_per_view=0, threads=1)
+
+        def fit(s):
+            return splat_fit(s, cfg).render(s.frames[0].pose, s.cameras[1])
+    ra = fit(a)
+    np.testing.assert_array_equal(ra, fit(b))  # its pixels do not matter
+    assert not np.array_equal(ra, fit(c))  # and they would at weight 1
+
+
+class _Renderer:
+    """'Fit': the mean image of the frames (weighted by frame weight), rendered everywhere."""
+
+    def __init__(self, sc):
+        wts = np.array([f.weight for f in sc.frames])
+        self.img = np.tensordot(wts, np.stack([sc.load(i) for i in range(len(sc))]), 1) / wts.sum()
+
+    def render(self, pose, camera):
+        return self.img
+
+
+def test_choose_weight_picks_the_weight_that_renders_held_back_inputs_best():
+    sc = plane_scene(xs=np.linspace(0, 0.9, 10))
+    truth = sc.frames[0].image
+    planned = [Frame(f"p{k}", sc.frames[k].pose, 1, k + 0.5) for k in range(3)]
+    # synthesized views far off the inputs: the smallest weight fits the held-back inputs best
+    bad = np.zeros((3,) + truth.shape, np.float32)
+    choice = ev.choose_weight(sc, planned, bad, None, (1.0, 0.25, 0.5), _Renderer)
+    assert choice["weight"] == 0.25 and choice["validation_views"] == ["src2", "src7"]
+    assert choice["validation_psnr"]["0.25"] > choice["validation_psnr"]["0.5"] > choice["validation_psnr"]["1.0"]
+    assert ev.validation_inputs(25) == [2, 7, 12, 17, 22] and ev.validation_inputs(3) == [1]
+
+
+def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(tmp_path, monkeypatch):
+    """Held-out images exist only inside scoring (elsewhere their frames have no pixels): the weighted fits
+    and their weight choice run, are recorded, shared against the oracle and shown in the report."""
+    from planescene import camera_line, plane_image
+
+    scene = camera_line(np.linspace(0, 0.69, 24), (32, 24), 26.0, plane_image())
+    cfg = ev.EvalConfig(size=32, inputs=5, holdout_every=4, n_mid=2, n_extra=1, seeds=2, baselines=("blend",),
+                        densify_baselines=(), examples=0, lpips=False, progress=False, synthetic_weights=(0.5, 1.0))
+    held = {scene.frames[i].name: scene.frames[i].image for i in ev.make_split(24, cfg).eval}
+    scene = replace(scene, frames=[replace(f, image=None) if f.name in held else f for f in scene.frames])
+    real_load = ev._load_truth
+    monkeypatch.setattr(ev, "_load_truth", lambda f, size: held[f.name] if f.name in held else real_load(f, size))
+
+    def network(sc, seed):
+        from sparself.baselines import BASELINES
+        from sparself.synthesize import Synthesized
+
+        def synth(s, targets):
+            imgs = BASELINES["blend"](s, targets)
+            return Synthesized(imgs, np.full(imgs.shape[:3], 0.5, np.float32))
+        return synth
+
+    res = ev.evaluate([scene], tmp_path / "out", cfg, network=network, reconstructors={"mean": _Renderer})
+    d = res["scenes"][0]["densification"]["mean"]
+    assert d["status"] == "ok", d.get("error")
+    wd = d[ev.NETWORK_WEIGHTED]
+    assert [p["seed"] for p in wd["per_seed"]] == [0, 1] and wd["views"] == 8
+    sel = wd["per_seed"][0]["selection"]
+    assert sel["weight"] in (0.5, 1.0) and set(sel["validation_psnr"]) == {"0.5", "1.0"} and sel["confidence"]
+    assert "oracle_share_weighted" in d or d.get("oracle_gain_db", 1) < ev.MIN_ORACLE_GAIN_DB
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "N + sparself, weighted" in md and "synthetic-frame weight" in md
+    off = ev.evaluate([scene], tmp_path / "off", replace(cfg, weighted=False), network=network,
+                      reconstructors={"mean": _Renderer})
+    assert ev.NETWORK_WEIGHTED not in off["scenes"][0]["densification"]["mean"]
+
+
+def test_mpi_blend_counts_each_pixel_by_its_reference_weight():
+    """At the reference pose (identity warp), a per-pixel weight scales that MPI's colour and coverage."""
+    from sparself.recon.mpi import MpiConfig
+    from sparself.recon.mpi import fit as mpi_fit
+    from sparself.recon.mpi import render_mpi
+
+    sc = plane_scene(xs=(0.0, 0.2, 0.4))
+    cam, pose = sc.cameras[1], sc.frames[1].pose
+    m = mpi_fit(sc, MpiConfig(num_planes=8)).mpi(1)
+    col, cov = render_mpi(m, pose, cam.K, (cam.height, cam.width))
+    wmap = torch.ones(1, cam.height, cam.width)
+    wmap[:, :, : cam.width // 2] = 0.25
+    col_w, cov_w = render_mpi(replace(m, weight=wmap), pose, cam.K, (cam.height, cam.width))
+    inner = (slice(None), slice(2, -2), slice(2, -2))  # away from the border's bilinear falloff
+    np.testing.assert_allclose((col_w / col.clamp_min(1e-9))[inner].numpy(),
+                               wmap.expand(3, -1, -1)[inner].numpy(), atol=1e-4)
+    np.testing.assert_allclose((cov_w / cov.clamp_min(1e-9))[inner].numpy(), wmap[inner].numpy(), atol=1e-4)
+    # through the renderer: a weighted frame's map reaches its MPI, and a uniform weight leaves the image as is
+    h, w = cam.height, cam.width
+    halves = replace(sc, frames=[replace(f, weight=0.5) for f in sc.frames])
+    assert torch.equal(mpi_fit(halves, MpiConfig(num_planes=8)).mpi(1).weight, torch.full((1, h, w), 0.5))
+    np.testing.assert_allclose(mpi_fit(halves, MpiConfig(num_planes=8)).render(pose, cam),
+                               mpi_fit(sc, MpiConfig(num_planes=8)).render(pose, cam), atol=1e-5)
