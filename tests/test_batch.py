@@ -133,6 +133,8 @@ def test_batch_evaluate_merges_seeds_and_equals_local(captures, ray_local, tmp_p
     assert summary["n_seeds"] == 2 and summary["mean"] == pytest.approx(np.mean(psnr))
     assert summary["std"] == pytest.approx(np.std(psnr)) and psnr[0] != psnr[1]  # seeds differ, merged
     assert [s["seed"] for s in ray_scene["densification"]["mpi"]["sparself"]["per_seed"]] == [0, 1]
+    # each seed unit chose its synthetic-frame weight on its own views; both weighted fits are merged
+    assert [s["seed"] for s in ray_scene["densification"]["mpi"]["sparself_weighted"]["per_seed"]] == [0, 1]
     assert "blend" in ray_scene["view_synthesis"]  # the seed-0 unit carried the baselines
     assert ray_scene["view_synthesis"] == local_scene["view_synthesis"]  # same numbers with and without Ray
     assert ray_scene["densification"]["mpi"]["sparself"]["per_seed"] == \

@@ -187,3 +187,27 @@ def test_mpi_blend_counts_each_pixel_by_its_reference_weight():
     assert torch.equal(mpi_fit(halves, MpiConfig(num_planes=8)).mpi(1).weight, torch.full((1, h, w), 0.5))
     np.testing.assert_allclose(mpi_fit(halves, MpiConfig(num_planes=8)).render(pose, cam),
                                mpi_fit(sc, MpiConfig(num_planes=8)).render(pose, cam), atol=1e-5)
+
+
+def test_merge_seeds_keeps_each_units_weighted_fit_and_its_choice():
+    from pathlib import Path
+
+    from sparself.batch import merge_seeds
+    from sparself.results import FrameScore, ScoredSet, SeededSets
+
+    def unit(seed, psnr):
+        def sets(p):
+            return SeededSets([ScoredSet([FrameScore("f", 3, p, 0.5, None)], seed=seed, views=8)]).to_json()
+        weighted = sets(psnr + 1)
+        weighted["per_seed"][0]["selection"] = {"weight": 0.25 * (seed + 1), "chosen_on_seed": seed}
+        one = ScoredSet([FrameScore("f", 3, 20.0, 0.5, None)], views=5).to_json()
+        orc = ScoredSet([FrameScore("f", 3, 24.0, 0.5, None)], views=8).to_json()
+        return {"name": "cap", "densification": {"nerf": {"base": one, "oracle": orc, ev.NETWORK: sets(psnr),
+                                                          ev.NETWORK_WEIGHTED: weighted}}}
+
+    m = merge_seeds([(1, unit(1, 22.0), Path("seed1")), (0, unit(0, 21.0), Path("seed0"))])["densification"]["nerf"]
+    wd = m[ev.NETWORK_WEIGHTED]
+    assert [p["seed"] for p in wd["per_seed"]] == [0, 1]
+    assert [p["selection"]["weight"] for p in wd["per_seed"]] == [0.25, 0.5]
+    assert wd["summary"]["psnr"]["mean"] == pytest.approx(22.5) and wd["summary"]["psnr"]["n_seeds"] == 2
+    assert m["oracle_share_weighted"] == pytest.approx(2.5 / 4) and m["oracle_share"] == pytest.approx(1.5 / 4)
