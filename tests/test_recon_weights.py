@@ -211,3 +211,19 @@ def test_merge_seeds_keeps_each_units_weighted_fit_and_its_choice():
     assert [p["selection"]["weight"] for p in wd["per_seed"]] == [0.25, 0.5]
     assert wd["summary"]["psnr"]["mean"] == pytest.approx(22.5) and wd["summary"]["psnr"]["n_seeds"] == 2
     assert m["oracle_share_weighted"] == pytest.approx(2.5 / 4) and m["oracle_share"] == pytest.approx(1.5 / 4)
+
+
+def test_weighting_options_on_the_command_line():
+    import argparse
+
+    from sparself.errors import ConfigError
+    from sparself.options import add_options, from_args
+
+    p = argparse.ArgumentParser()
+    add_options(p, ev.EvalConfig, skip=("train",))
+    cfg = from_args(ev.EvalConfig, p.parse_args(["--synthetic-weights", "0.25,1"]), skip=("train",))
+    assert cfg.synthetic_weights == (0.25, 1.0) and cfg.weighted
+    assert not from_args(ev.EvalConfig, p.parse_args(["--no-weighted"]), skip=("train",)).weighted
+    with pytest.raises(ConfigError, match="synthetic_weights"):
+        ev.EvalConfig(synthetic_weights=(-1.0,)).validate()
+    ev.EvalConfig(synthetic_weights=(), weighted=False).validate()  # nothing to choose when it is off
