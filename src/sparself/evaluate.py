@@ -28,6 +28,11 @@ Protocol (per scene, in this order):
      snapped planned poses; a planned pose without one keeps the network's seed-0 view), then renders the held-out
      poses. The oracle share is (35 - 25) / (oracle - 25) in PSNR.
 
+"N + sparself, weighted" (``weighted``, on by default) refits each reconstructor on N + the network's views
+with their confidence maps as per-pixel loss weights, times a synthetic-frame weight chosen from
+``synthetic_weights`` on the inputs alone (:func:`choose_weight`: fitted without every 5th interior input,
+scored on those), on the run's first seed; the plain "N + sparself" stays unweighted, for comparability.
+
 Results: a JSON-able dict (per frame, per scene, mean/std, every setting and versions). A scene that
 fails is recorded with its error and the others go on.
 """
