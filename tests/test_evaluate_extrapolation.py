@@ -176,8 +176,8 @@ def test_report_rows_for_both_groups_and_seed_merge_keeps_them(tmp_path):
     assert len(rows) == 6 and any(ln.startswith("| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | +6.02 |") for ln in rows)
     assert any(ln.startswith("| cap: extrapolated (2) | 16.99 ± 3.01 | 20.00 |") for ln in rows)
     assert "| cap: interpolated (3) | 36.99 ± 3.01 | 40.00 |" in md
-    # the reconstructor's comparison: the oracle's share per group too (6.02 of 6.02 dB)
-    assert "| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | 26.02 | 100% |" in md
+    # the reconstructor's comparison: the oracle's share per group too (6.02 of 6.02 dB), also for the weighted refit
+    assert "| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | 26.02 ± 0.00 | 26.02 | 100% | 100% |" in md
     assert "View synthesis at extrapolated planned poses" in md and "| cap | 16.99 ± 3.01 | 20.00 |" in md
     assert "extrapolated" in (out / "report.html").read_text()
     assert "cap: view synthesis of extrapolated frames: sparself (16.99 dB) does not beat the best baseline, fake " \
