@@ -159,6 +159,7 @@ def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(t
     assert "oracle_share_weighted" in d or d.get("oracle_gain_db", 1) < ev.MIN_ORACLE_GAIN_DB
     md = (tmp_path / "out" / "report.md").read_text()
     assert "N + sparself, weighted" in md and "synthetic-frame weight" in md
+    assert "mean: N + sparself, weighted (confidence x the chosen synthetic-frame weight) vs unweighted:" in md
     off = ev.evaluate([scene], tmp_path / "off", replace(cfg, weighted=False), network=network,
                       reconstructors={"mean": _Renderer})
     assert ev.NETWORK_WEIGHTED not in off["scenes"][0]["densification"]["mean"]

@@ -542,7 +542,10 @@ def conclusions(results: dict) -> list[str]:
                      for s in ok if r in s["densification"] and k in s["densification"][r]
                      and mean_of(s["densification"][r].get(NETWORK), "psnr")[0] is not None
                      and mean_of(s["densification"][r][k], "psnr")[0] is not None]
-            if diffs:
+            if diffs and k == NETWORK_WEIGHTED:
+                out.append(f"{r}: N + sparself, weighted (confidence x the chosen synthetic-frame weight) vs "
+                           f"unweighted: {-float(np.mean(diffs)):+.2f} dB PSNR on average over {len(diffs)} scene(s).")
+            elif diffs:
                 who = "the real photos (oracle)" if k == "oracle" else f"{k}-synthesized views"
                 out.append(f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average "
                            f"over the {len(diffs)} scene(s) where both ran.")
