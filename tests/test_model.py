@@ -282,7 +282,7 @@ def test_queries_leave_one_out_novel_and_crops():
     assert sel.sets == [loo.sets[3], loo.sets[1]] and torch.equal(sel.K[0], src.K[3])
     Kc = sel.crop_camera(0, (2, 5, 8, 8))
     assert torch.allclose(Kc[:2, 2], src.K[3][:2, 2] - torch.tensor([5.0, 2.0]))
-    q = novel_queries(src, src.K[:2].numpy(), src.w2c[:2].numpy(), src.vectors[:2].numpy(), [1.5, 4.2], src.hw)
+    q = novel_queries(src, src.K[:2].numpy(), src.w2c[[1, 4]].numpy(), src.vectors[:2].numpy(), [1.5, 4.2], src.hw)
     assert q.n_before.tolist() == [2, 5] and q.sets == [bracket(src.positions, 1.5), (4, 3)]
     net = _net(FCDecoder((4, 6)))
     out = render(net, src, q)  # the fc decoder renders its grid, resized to the queries' size
@@ -359,3 +359,39 @@ def test_confidence_is_low_where_the_sources_disagree():
     assert torch.allclose(confidence_map(peaked, zero, one, zero, one), one, atol=1e-5)
     assert torch.allclose(confidence_map(peaked, one, zero, zero, one), zero, atol=1e-4)  # sources disagree
     assert torch.allclose(confidence_map(flat, zero, one, zero, zero), one)  # the fallback's agreement
+
+
+def test_closed_ring_pairs_the_last_source_with_the_first_instead_of_extrapolating():
+    """On a ring (the last camera next to the first) a query beyond either end sits between the last
+    source and the first, with t from the camera distances; on an open path (a line) it still
+    extrapolates from the end pair, with t from the sequence positions."""
+    from sparself.model.query import query_pair, source_set
+
+    ang = np.radians(np.arange(8) * 45.0)  # 8 cameras around a full circle, in order
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros(8)], 1)
+    pos = np.arange(8, dtype=np.float64)
+    q = np.array([np.cos(np.radians(330.0)), np.sin(np.radians(330.0)), 0.0])  # between camera 7 and 0
+    pair, t = query_pair(pos, ring, 7.5, q)
+    assert pair == (7, 0) and t == pytest.approx(1 / 3, abs=0.02)  # 15 deg from 7, 30 deg from 0
+    assert query_pair(pos, ring, -0.5, q)[0] == (7, 0)  # the same pair from before the first
+    assert source_set(pos, ring, 0.0, ring[0], exclude=0) == (7, 1)  # leave-one-out at the start
+    assert source_set(pos, ring, 7.0, ring[7], exclude=7) == (6, 0)
+    assert query_pair(pos, ring, 3.5, q) == ((3, 4), 0.5)  # within the sequence: unchanged
+    line = np.stack([pos, np.zeros(8), np.zeros(8)], 1)
+    assert query_pair(pos, line, 7.5, np.array([7.5, 0, 0])) == ((7, 6), -0.5)
+    assert query_pair(pos, line, 0.0, line[0], exclude=0) == ((1, 2), -1.0)
+
+
+def test_novel_and_leave_one_out_queries_carry_their_fractions_to_the_flow_alignment():
+    """Queries keep each pair's t (selected with them); flow alignment at t = 0 / 1 returns the sources."""
+    from planescene import small_plane_scene
+    from sparself.model.query import Sources, flow_aligned, leave_one_out, novel_queries
+
+    src = Sources.from_scene(small_plane_scene(5)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0), np.array([2.0, 3.0]))
+    loo = leave_one_out(src)
+    assert loo.fractions.tolist() == [-1.0, 0.5, 0.5, 0.5, -1.0]  # an open line: the ends extrapolate
+    assert loo.sets[4] == (3, 2) and loo.select([4, 1]).fractions.tolist() == [-1.0, 0.5]
+    q = novel_queries(src, src.K[:2].numpy(), src.w2c[1:3].numpy(), src.vectors[:2].numpy(), [1.0, 1.5], src.hw)
+    assert q.sets == [(1, 2), (1, 2)] and q.fractions.tolist() == [0.0, 0.5]
+    a = flow_aligned(src, q.select([0])).aligned[0]
+    assert torch.allclose(a[0], src.images[1], atol=1e-6)

@@ -41,11 +41,34 @@ def bracket(positions: np.ndarray, q: float, exclude: int = -1) -> tuple[int, in
     return (after[0], after[1]) if not before else (before[-1], before[-2])
 
 
+def query_pair(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray,
+               exclude: int = -1) -> tuple[tuple[int, int], float]:
+    """A query's two sources and its fraction t between them (0 at the first, 1 at the second).
+
+    Within the sequence: the bracketing pair (:func:`bracket`) and t from the sequence positions. Beyond
+    either end, a closed capture (a ring, a 360-degree loop: the last view sits next to the first) puts
+    the query between the last source and the first: that pair is used, with t = d_last / (d_last +
+    d_first) from the camera centres, when the far end's source is nearer to the query's camera than the
+    second source of the one-sided pair (which would extrapolate); on an open path it is not."""
+    pair = bracket(positions, q, exclude)
+    ids = [i for i in range(len(positions)) if i != exclude]
+    first, last = ids[0], ids[-1]
+    if positions[first] <= q <= positions[last]:
+        return pair, bracket_fraction(positions, pair, q)
+    d = np.linalg.norm(np.asarray(centres, np.float64) - np.asarray(q_centre, np.float64), axis=1)
+    other = first if q > positions[last] else last
+    if other != pair[1] and d[other] < d[pair[1]]:
+        tot = d[last] + d[first]
+        return (last, first), float(d[last] / tot) if tot > 0 else 0.5
+    return pair, bracket_fraction(positions, pair, q)
+
+
 def source_set(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2,
                exclude: int = -1) -> tuple[int, ...]:
-    """A query's k sources: its two bracketing ones (:func:`bracket`) first, then the k - 2 others whose
-    camera centres are nearest to the query's (never ``exclude``, the target). centres (S, 3)."""
-    pair = bracket(positions, q, exclude)
+    """A query's k sources: its pair (:func:`query_pair`: the bracketing one, or the last and first of a
+    closed capture) first, then the k - 2 others whose camera centres are nearest to the query's (never
+    ``exclude``, the target). centres (S, 3)."""
+    pair = query_pair(positions, centres, q, q_centre, exclude)[0]
     if k <= 2:
         return pair
     dist = np.linalg.norm(np.asarray(centres, np.float64) - np.asarray(q_centre, np.float64), axis=1)
@@ -141,7 +164,8 @@ class Queries:
     sequence positions among the sources; n_before (T,) sources before each query step in its sequence;
     sets: per query the indices of the sources its decoder reads; hw: output size (h, w); aligned:
     (T, n, 3, H, W) the first n sources of each set aligned to the query by optical flow, or None;
-    crops: per query the part of its image to render, or None (whole images)."""
+    crops: per query the part of its image to render, or None (whole images); fractions (T,): each
+    query's t between the two first sources of its set (:func:`query_pair`; None: from the positions)."""
 
     K: torch.Tensor
     w2c: torch.Tensor
@@ -152,6 +176,7 @@ class Queries:
     hw: tuple[int, int]
     aligned: torch.Tensor | None = None
     crops: list[Crop] | None = None
+    fractions: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.sets)
@@ -163,7 +188,8 @@ class Queries:
                        positions=self.positions[idx], n_before=self.n_before[idx],
                        sets=[self.sets[int(i)] for i in idx],
                        aligned=None if self.aligned is None else self.aligned[idx],
-                       crops=None if self.crops is None else [self.crops[int(i)] for i in idx])
+                       crops=None if self.crops is None else [self.crops[int(i)] for i in idx],
+                       fractions=None if self.fractions is None else self.fractions[idx])
 
     def cropped(self, crops: list[Crop]) -> "Queries":
         return replace(self, crops=list(crops))
@@ -182,9 +208,10 @@ def leave_one_out(sources: Sources, hw: tuple[int, int] | None = None, k: int = 
     sources')."""
     pos, centres = sources.positions, camera_centres(sources.w2c)
     sets = [source_set(pos, centres, float(pos[t]), centres[t], k, exclude=t) for t in range(len(pos))]
+    fr = [query_pair(pos, centres, float(pos[t]), centres[t], exclude=t)[1] for t in range(len(pos))]
     return Queries(K=sources.K, w2c=sources.w2c, vectors=sources.vectors, positions=pos,
                    n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device), sets=sets,
-                   hw=hw or sources.hw)
+                   hw=hw or sources.hw, fractions=np.asarray(fr, np.float64))
 
 
 def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.ndarray, index,
@@ -201,7 +228,8 @@ def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.
     return Queries(K=torch.tensor(K, dtype=torch.float32, device=dev), w2c=w2c_t,
                    vectors=torch.from_numpy(vectors).to(dev), positions=q_pos,
                    n_before=torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev),
-                   sets=[source_set(src_pos, centres, float(q), c, k) for q, c in zip(q_pos, q_centres)], hw=hw)
+                   sets=[source_set(src_pos, centres, float(q), c, k) for q, c in zip(q_pos, q_centres)], hw=hw,
+                   fractions=np.array([query_pair(src_pos, centres, float(q), c)[1] for q, c in zip(q_pos, q_centres)]))
 
 
 def flow_aligned(sources: Sources, queries: Queries) -> Queries:
@@ -209,8 +237,8 @@ def flow_aligned(sources: Sources, queries: Queries) -> Queries:
     (:func:`sparself.warp.flow_pair`, at the query's position between them, clipped to [-0.5, 1.5])."""
     imgs = sources.images.float().permute(0, 2, 3, 1).cpu().numpy()
     out = []
-    for s, q in zip(queries.sets, queries.positions):
-        t = bracket_fraction(sources.positions, s[:2], float(q))
+    for b, (s, q) in enumerate(zip(queries.sets, queries.positions)):
+        t = bracket_fraction(sources.positions, s[:2], float(q)) if queries.fractions is None else queries.fractions[b]
         out.append(np.stack(flow_pair(imgs[s[0]], imgs[s[1]], float(np.clip(t, -0.5, 1.5)))))
     aligned = torch.from_numpy(np.stack(out)).permute(0, 1, 4, 2, 3).to(sources.device).contiguous()
     return replace(queries, aligned=aligned)
