@@ -181,6 +181,13 @@ def test_sweep_planes_surround_the_object_of_a_ring_capture():
     ring = Scene({1: Camera.pinhole(W, H, F)}, frames)
     near, far = sweep_depth_bounds(ring)
     assert np.isclose(near, 1.0) and np.isclose(far, 3.0)
+    # "object": every camera is 2 from the point; half the long side's field of view has tan W / (2f)
+    assert np.allclose(sweep_depth_bounds(ring, "object"), (1.0, 3.0))  # a wide view: r > 1, the wide range
+    narrow = Scene({1: Camera.pinhole(W, H, 4 * F)}, frames)
+    r = 2.0 * W / (2 * 4 * F)
+    assert r < 0.5 and np.allclose(sweep_depth_bounds(narrow, "object"), (2.0 - r, 2.0 + r))
+    assert np.allclose(sweep_depth_bounds(narrow), (1.0, 3.0))  # the default is unchanged
+    assert sweep_depth_bounds(plane_scene(), "object") == (1.0, 4.0)  # known bounds still win
     assert sweep_depth_bounds(plane_scene()) == (1.0, 4.0)  # known bounds win
 
 
@@ -232,3 +239,19 @@ def test_four_sources_train_reload_and_synthesize_with_confidence(tmp_path, tiny
     assert np.array_equal(a.images, b.images) and 0 <= a.confidence.min() and a.confidence.max() <= 1
     with pytest.raises(ConfigError, match="sources"):
         TrainConfig(sources=1)
+
+
+def test_ring_range_option_reaches_the_config_from_the_command_line(tiny_cfg):
+    """--ring-range is generated from the TrainConfig field (default wide, the earlier rule); a bad value
+    is a ConfigError; old run configs without it load as wide."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "sparself.cli", "train", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "--ring-range" in out.stdout
+    assert TrainConfig().ring_range == "wide"
+    old = {k: v for k, v in tiny_cfg(ring_range="object").to_json().items() if k != "ring_range"}
+    assert TrainConfig.from_json(old).ring_range == "wide"
+    assert TrainConfig.from_json(tiny_cfg(ring_range="object").to_json()).ring_range == "object"
+    with pytest.raises(ConfigError, match="ring_range must be wide or object"):
+        tiny_cfg(ring_range="tight")

@@ -76,6 +76,10 @@ class TrainConfig:
                         "and the fallback")
     gate_init: float = option(0.0, "the gate's initial logit (0: half sweep, half fallback; negative: "
                               "towards the fallback)")
+    ring_range: str = option("wide", "depth range of the sweep planes for a ring/object capture without "
+                             "bounds or sparse points: wide (0.5x-1.5x the camera distances to the common "
+                             "point) or object (the object that fits every view; measured: README)",
+                             choices=("wide", "object"))
     fallback: str = option("flow", "what the sweep decoder falls back to where depth is ambiguous: the two "
                            "sources aligned by optical flow, or as they are", choices=("flow", "blend"))
     ssim_weight: float = option(0.1, "loss = MSE + ssim_weight x (1 - SSIM) (7 px Gaussian window)")
@@ -115,6 +119,8 @@ class TrainConfig:
                               "(train: --size; densify: --out-size)")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ConfigError(f"device must be auto, cpu or cuda, got {self.device!r}")
+        if self.ring_range not in ("wide", "object"):
+            raise ConfigError(f"ring_range must be wide or object, got {self.ring_range!r}")
         if self.fallback not in ("blend", "flow"):
             raise ConfigError(f"fallback must be blend or flow, got {self.fallback!r}")
         if self.amp not in AMP_MODES:
@@ -172,11 +178,13 @@ def finetunes_backbone(cfg: TrainConfig, device: torch.device) -> bool:
 
 # ---- scene -> tensors ----------------------------------------------------------------------------
 
-def sweep_depth_bounds(scene: Scene) -> tuple[float, float]:
+def sweep_depth_bounds(scene: Scene, ring_range: str = "wide") -> tuple[float, float]:
     """(near, far) for the sweep planes: ``Scene.depth_bounds()`` when the scene knows its bounds or sparse
     points; otherwise, for cameras that look at a common point (a ring or an object capture, e.g.
-    Middlebury), 0.5x to 1.5x the range of camera distances to the point nearest all optical axes, which
-    puts the planes around the object instead of over a wide guessed range."""
+    Middlebury), around the point nearest all optical axes: ``ring_range="wide"``: 0.5x to 1.5x the range
+    of camera distances to it; ``"object"``: that range widened by the radius of the object such a capture
+    can hold (one it sees whole from every camera fits within z_min x tan(half the field of view along
+    the long side) of the point), within the wide range: the planes sample the object, not empty space."""
     if scene.bounds is not None or (scene.points is not None and len(scene.points) >= 10):
         return scene.depth_bounds()
     c = scene.centers()
@@ -185,8 +193,14 @@ def sweep_depth_bounds(scene: Scene) -> tuple[float, float]:
     if x is not None:
         z = np.einsum("ij,ij->i", x - c, dirs)  # depth of the point in each camera
         if np.all(z > 0):
-            return float(0.5 * z.min()), float(1.5 * z.max())
+            r = z.min() * object_fov_tan(scene) if ring_range == "object" else np.inf
+            return float(max(0.5 * z.min(), z.min() - r)), float(min(1.5 * z.max(), z.max() + r))
     return scene.depth_bounds()
+
+
+def object_fov_tan(scene: Scene) -> float:
+    """The smallest tan(half the field of view along the long image side) over the scene's cameras."""
+    return float(min(max(c.width / (2 * c.K[0, 0]), c.height / (2 * c.K[1, 1])) for c in scene.cameras.values()))
 
 
 def fc_grid(width: int, height: int, side: int) -> tuple[int, int]:
@@ -457,7 +471,7 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[Sourc
         raise InputError(f"training frames of {scene.source} differ in size ({e}); resize them first") from None
     centers = np.stack([p.center for p in sources.poses])
     norm = PoseNorm(tuple(float(v) for v in centers.mean(0)), float(src.scale()))
-    near, far = sweep_depth_bounds(src)
+    near, far = sweep_depth_bounds(src, cfg.ring_range)
     h, w = sources.hw
     meta = RunMeta(center=norm.center, scale=norm.scale, near=near, far=far, fc_hw=fc_grid(w, h, cfg.fc_side),
                    backbone_size=backbone_side(cfg, device), train_hw=(h, w),
