@@ -242,16 +242,32 @@ def test_four_sources_train_reload_and_synthesize_with_confidence(tmp_path, tiny
 
 
 def test_ring_range_option_reaches_the_config_from_the_command_line(tiny_cfg):
-    """--ring-range is generated from the TrainConfig field (default wide, the earlier rule); a bad value
-    is a ConfigError; old run configs without it load as wide."""
+    """--ring-range is generated from the TrainConfig field (default object); a bad value is a
+    ConfigError; old run configs without it load as wide (the earlier rule)."""
     import subprocess
     import sys
 
     out = subprocess.run([sys.executable, "-m", "sparself.cli", "train", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and "--ring-range" in out.stdout
-    assert TrainConfig().ring_range == "wide"
-    old = {k: v for k, v in tiny_cfg(ring_range="object").to_json().items() if k != "ring_range"}
-    assert TrainConfig.from_json(old).ring_range == "wide"
+    assert TrainConfig().ring_range == "object"
+    old = {k: v for k, v in tiny_cfg(ring_range="object").to_json().items() if k not in ("ring_range", "end_targets")}
+    assert TrainConfig.from_json(old).ring_range == "wide" and TrainConfig.from_json(old).end_targets
     assert TrainConfig.from_json(tiny_cfg(ring_range="object").to_json()).ring_range == "object"
     with pytest.raises(ConfigError, match="ring_range must be wide or object"):
         tiny_cfg(ring_range="tight")
+
+
+def test_end_targets_off_trains_only_on_targets_between_their_sources():
+    """On an open line the leave-one-out targets at the ends extrapolate (t outside [0, 1]): with
+    end_targets off the loss never visits them; on; or with fewer than 2 inner targets, it visits all."""
+    from sparself.model.query import Sources, leave_one_out
+    from sparself.model import PoseNorm
+    from sparself.train import trained_targets
+
+    src = Sources.from_scene(plane_scene(6)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0), np.array([2.0, 3.0]))
+    q = leave_one_out(src)
+    assert trained_targets(q, False).tolist() == [False, True, True, True, True, False]
+    assert trained_targets(q, True).all()
+    three = leave_one_out(Sources.from_scene(plane_scene(3)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0)))
+    assert trained_targets(three, False).all()  # only one inner target: keep them all
+    assert not TrainConfig().end_targets and TrainConfig(end_targets=True).end_targets

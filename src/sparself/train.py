@@ -76,7 +76,7 @@ class TrainConfig:
                         "and the fallback")
     gate_init: float = option(0.0, "the gate's initial logit (0: half sweep, half fallback; negative: "
                               "towards the fallback)")
-    ring_range: str = option("wide", "depth range of the sweep planes for a ring/object capture without "
+    ring_range: str = option("object", "depth range of the sweep planes for a ring/object capture without "
                              "bounds or sparse points: wide (0.5x-1.5x the camera distances to the common "
                              "point) or object (the object that fits every view; measured: README)",
                              choices=("wide", "object"))
@@ -84,6 +84,9 @@ class TrainConfig:
                            "sources aligned by optical flow, or as they are", choices=("flow", "blend"))
     ssim_weight: float = option(0.1, "loss = MSE + ssim_weight x (1 - SSIM) (7 px Gaussian window)")
     fc_side: int = option(48, "long side in px of the fc decoder's output grid (upsampled to the target)")
+    end_targets: bool = option(False, "train on the leave-one-out targets at the ends of an open sequence too "
+                               "(extrapolated from the two sources on one side); off: only targets between "
+                               "their two sources, as the planned midpoints are (measured: README)")
     context: bool = option(True, "ablation: zero the LSTM output given to the decoder")
     sources: int = option(2, "source views per rendered view (sweep decoder): the two bracketing ones plus "
                           "the nearest others by camera centre; above 2 the decoder weighs them per pixel "
@@ -135,7 +138,8 @@ class TrainConfig:
     @classmethod
     def from_json(cls, d: dict) -> "TrainConfig":
         known = {f.name for f in dataclasses.fields(cls)}
-        d = {"fallback": "blend", **d}  # runs saved before the option existed used the plain blend
+        # runs saved before these options existed used the plain blend, the wide ring range and every target
+        d = {"fallback": "blend", "ring_range": "wide", "end_targets": True, **d}
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
@@ -351,6 +355,11 @@ class TrainData:
     sources: Sources
     queries: Queries
     truth: torch.Tensor
+    trained: np.ndarray | None = None  # (T,) bool: the targets the loss visits (None: all)
+
+    def __post_init__(self) -> None:
+        if self.trained is None:
+            self.trained = np.ones(len(self.queries), bool)
 
     def truth_of(self, targets: list[int], crops=None) -> torch.Tensor:
         if crops is None:
@@ -374,7 +383,17 @@ def training_data(model: CNNLSTM, sources: Sources, cfg: TrainConfig, finetune: 
         model.backbone.requires_grad_(False)
         with torch.no_grad():
             feats = model.backbone(bb)
-    return TrainData(dataclasses.replace(sources, backbone_input=bb, features=feats), queries, truth)
+    return TrainData(dataclasses.replace(sources, backbone_input=bb, features=feats), queries, truth,
+                     trained_targets(queries, cfg.end_targets))
+
+
+def trained_targets(queries: Queries, end_targets: bool) -> np.ndarray:
+    """Which leave-one-out targets the loss visits: all, or (``end_targets`` off) those between their
+    pair (0 <= t <= 1), i.e. not the ends of an open sequence, which extrapolate twice as far as a planned
+    extrapolation and whose flow fallback is clipped at t = -0.5; all when fewer than 2 would remain."""
+    fr = queries.fractions
+    inner = np.ones(len(queries), bool) if fr is None else (fr >= 0) & (fr <= 1)
+    return np.ones(len(queries), bool) if end_targets or inner.sum() < 2 else inner
 
 
 def _random_crops(data: TrainData, n: int, side: int, gen: torch.Generator) -> list[tuple[int, int, int, int]]:
@@ -534,7 +553,8 @@ def _session(scene: Scene, cfg: TrainConfig, device: torch.device, ck: dict | No
 def _epoch(s: _Session, cfg: TrainConfig) -> float:
     """One pass over every training frame in random order. -> mean loss."""
     n, total = len(s.data.sources), 0.0
-    perm = torch.randperm(n, generator=s.gen).tolist()
+    perm = [t for t in torch.randperm(n, generator=s.gen).tolist() if s.data.trained[t]]
+    n = len(perm)
     for b in range(0, n, cfg.batch_size):
         targets = perm[b:b + cfg.batch_size]
         with autocast(s.device, s.dtype):
