@@ -24,14 +24,21 @@ import time
 from pathlib import Path
 
 
-def _gsplat_fit(steps: int, seed: int):
-    """3DGS with gsplat (CUDA) at a fixed step count, or the CPU splatting where gsplat cannot run."""
+def _gsplat_fit(steps: int, seed: int, wait_for: str | None = None):
+    """3DGS with gsplat (CUDA) at a fixed step count, or the CPU splatting where gsplat cannot run.
+    wait_for: a file whose existence says gsplat's CUDA code is built (gsplat rebuilds from scratch in every
+    process that finds no build, so parallel runs must wait for one build)."""
     from sparself.recon import get_reconstructor
     from sparself.recon.gsplat import available
 
     if available()[0]:
         fit = get_reconstructor("gsplat")
-        return lambda sc: fit(sc, steps=steps, seed=seed, progress=False)
+
+        def fit_built(sc):
+            while wait_for and not Path(wait_for).exists():
+                time.sleep(1)
+            return fit(sc, steps=steps, seed=seed, progress=False)
+        return fit_built
     fit = get_reconstructor("splat")
     return lambda sc: fit(sc, seed=seed, progress=False)
 
@@ -45,7 +52,7 @@ def run(args) -> int:
                      densify_baselines=tuple(filter(None, args.densify_baselines.split(","))),
                      baselines=tuple(args.baselines.split(",")), lpips=False, progress=False,
                      max_eval=args.max_eval, epochs=args.epochs, nerf_steps=args.nerf_steps, **_set(args.set))
-    fits = {r: _gsplat_fit(args.gs_steps, cfg.recon_seed) if r == "3dgs" else reconstructor(r, cfg) for r in recons}
+    fits = {r: _gsplat_fit(args.gs_steps, cfg.recon_seed, args.wait_for) if r == "3dgs" else reconstructor(r, cfg) for r in recons}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
@@ -110,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--epochs", type=int, default=None, help="network epochs (default: the network's)")
     r.add_argument("--nerf-steps", type=int, default=1000)
     r.add_argument("--gs-steps", type=int, default=3000, help="gsplat steps per fit (CUDA)")
+    r.add_argument("--wait-for", default=None, help="wait for this file before the first gsplat fit")
     r.add_argument("--set", action="append", default=[], metavar="FIELD=JSON", help="any other EvalConfig field")
     m = sub.add_parser("merge", help="merge runs into one report")
     m.add_argument("runs", nargs="+")
