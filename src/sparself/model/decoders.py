@@ -16,10 +16,8 @@
   its learned blend weight; further sources start down-weighted). Every decoder also returns a
   per-pixel confidence (:meth:`SweepDecoder.with_confidence`, :func:`confidence_map`).
 
-Measured (benchmarks/synthesis_quality.py, seed 0, 100 epochs, 1 thread), PSNR dB / SSIM on held-out
-real frames: llff_bird, 24 real midpoints at 136x240: sweep with flow fallback 24.56 / 0.844, with the
-plain blend 24.36 / 0.840, best baseline plane sweep 20.99 / 0.774; templeRing, 9 held-out views at
-160x120: 26.96 / 0.881, with the plain blend 23.38 / 0.792, best baseline flow 27.50 / 0.890.
+Measured quality, against the classical baselines on held-out real frames: the README's Results
+(benchmarks/synthesis_quality.py, benchmarks/table3.py).
 
 Every decoder is called as ``decoder(sources, queries, ctx) -> (T, 3, h, w)`` (see
 :mod:`sparself.model.query`): ``ctx`` (T, 512) is the LSTM output at each query step. ``reads_sources``
