@@ -27,18 +27,18 @@ def option(default: Any, help: str, *, choices=None, cli: bool = True, metavar: 
     return dataclasses.field(default=default, metadata=md)
 
 
-def _int_tuple(text: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+def _number_tuple(cast, what: str):
+    """A parser of comma-separated numbers of type ``cast`` (``what`` names them in its error)."""
+    def parse(text: str) -> tuple:
+        try:
+            return tuple(cast(x) for x in text.split(",") if x.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}, got {text!r}") from None
+    return parse
 
 
-def _float_tuple(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+_int_tuple = _number_tuple(int, "integers")
+_float_tuple = _number_tuple(float, "numbers")
 
 
 def _str_tuple(text: str) -> tuple[str, ...]:
