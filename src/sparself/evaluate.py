@@ -67,8 +67,8 @@ from .plot import plot_cameras
 from .recon import get_reconstructor
 from .report import safe_name as _safe
 from .report import write_report
-from .results import (EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet,
-                      SeededSets)
+from .results import (EXTRAPOLATED, INTERPOLATED, NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet, SeededSets,
+                      share_of_oracle_gain)
 from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
 from .synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
@@ -330,9 +330,11 @@ def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
 
 # ---- one scene -------------------------------------------------------------------------------------
 
-def _with_images(scene: Scene, extra: list[Frame], images) -> Scene:
-    """scene plus ``extra`` frames carrying in-memory images, sorted by capture index."""
-    return densify_scene(scene, list(extra), np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:]))
+def _with_images(scene: Scene, extra: list[Frame], images, confidence: np.ndarray | None = None) -> Scene:
+    """scene plus ``extra`` frames carrying in-memory images (and their confidence maps), sorted by capture
+    index."""
+    images = np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:])
+    return densify_scene(scene, list(extra), images, confidence)
 
 
 def _snap(index: float, split: Split) -> int | None:
@@ -602,9 +604,7 @@ def oracle_share(entry: dict) -> None:
         f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
     for key, share in ((NETWORK, "oracle_share"), (NETWORK_WEIGHTED, "oracle_share_weighted")):
         if "summary" in entry.get(key, {}):
-            s = entry[key]["summary"]["psnr"]["mean"]
-            # a share of a gain the oracle does not show is noise, not a fraction
-            entry[share] = float((s - b) / (o - b)) if o - b >= MIN_ORACLE_GAIN_DB else None
+            entry[share] = share_of_oracle_gain(b, entry[key]["summary"]["psnr"]["mean"], o)
 
 
 def _reconstruct(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
@@ -642,7 +642,7 @@ def _render_targets(ev: _SceneEval, renderer) -> np.ndarray:
 def weighted_scene(scene: Scene, planned: list[Frame], images: np.ndarray, confidence: np.ndarray | None,
                    weight: float) -> Scene:
     """``scene`` + synthesized frames carrying their confidence maps (None: weight only) and loss ``weight``."""
-    sc = densify_scene(scene, list(planned), np.asarray(images, np.float32), confidence)
+    sc = _with_images(scene, planned, images, confidence)
     return replace(sc, frames=[replace(f, weight=float(weight)) if f.synthetic else f for f in sc.frames])
 
 

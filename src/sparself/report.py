@@ -16,7 +16,7 @@ import matplotlib
 import numpy as np
 
 from .results import METRICS as METRIC_NAMES
-from .results import EXTRAPOLATED, INTERPOLATED, MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED, finite, mean_of
+from .results import EXTRAPOLATED, INTERPOLATED, NETWORK, NETWORK_WEIGHTED, finite, mean_of, share_of_oracle_gain
 from .scene import load_image
 
 log = logging.getLogger(__name__)
@@ -363,9 +363,10 @@ def _share_cell(d: dict, share: str = "oracle_share") -> str:
 def _group_share_cell(d: dict, group: str, key: str = NETWORK) -> str:
     """The oracle share of ``key`` on one group's frames (where the instrument holds and the gain is measurable)."""
     b, o, s = (mean_of(d.get(k), "psnr", group)[0] for k in ("base", "oracle", key))
-    if str(d.get("instrument", "ok")).startswith("failed") or None in (b, o, s) or o - b < MIN_ORACLE_GAIN_DB:
+    share = share_of_oracle_gain(b, s, o)
+    if str(d.get("instrument", "ok")).startswith("failed") or share is None:
         return "–"
-    return f"{100 * (s - b) / (o - b):.0f}%"
+    return f"{100 * share:.0f}%"
 
 
 def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:

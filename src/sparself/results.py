@@ -103,6 +103,15 @@ def finite(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def share_of_oracle_gain(base: float | None, synth: float | None, oracle: float | None) -> float | None:
+    """(synth - base) / (oracle - base): the part of the oracle's gain that synthesized views capture; None
+    when a value is missing or the oracle gains less than MIN_ORACLE_GAIN_DB (a share of a gain the
+    oracle does not show is noise, not a fraction)."""
+    if None in (base, synth, oracle) or oracle - base < MIN_ORACLE_GAIN_DB:
+        return None
+    return float((synth - base) / (oracle - base))
+
+
 def mean_of(entry: dict | None, metric: str, group: str | None = None) -> tuple[float | None, float | None]:
     """(mean, std over seeds or None) of a record's summary (the JSON of a ScoredSet or SeededSets), or of
     its summary of one group's frames (None, None when it has no such group)."""
