@@ -199,6 +199,9 @@ def test_cli_evaluate_end_to_end_with_the_real_network(tmp_path, capsys):
     s = data["scenes"][0]
     assert s["status"] == "ok" and s["name"] == "cap"
     assert "sparself" in s["view_synthesis"] and s["densification"]["mpi"]["status"] == "ok"
+    # the weighted row's weight choice: the real network synthesizes again from the 4 inputs not held back
+    sel = s["densification"]["mpi"][ev.NETWORK_WEIGHTED]["per_seed"][0]["selection"]
+    assert len(sel["validation_sources"]) == 4 and not set(sel["validation_sources"]) & set(sel["validation_views"])
     assert data["settings"]["epochs"] == 1 and data["settings"]["size"] == 32
     assert "| Scene | mpi N | mpi N+synth | mpi change |" in (out / "report.md").read_text()
 

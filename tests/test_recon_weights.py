@@ -122,7 +122,8 @@ def test_choose_weight_picks_the_weight_that_renders_held_back_inputs_best():
     planned = [Frame(f"p{k}", sc.frames[k].pose, 1, k + 0.5) for k in range(3)]
     # synthesized views far off the inputs: the smallest weight fits the held-back inputs best
     bad = np.zeros((3,) + truth.shape, np.float32)
-    choice = ev.choose_weight(sc, planned, bad, None, (1.0, 0.25, 0.5), _Renderer)
+    views = ev.ValidationViews(bad, None, [f.name for f in sc.without([2, 7]).frames])
+    choice = ev.choose_weight(sc, planned, views, (1.0, 0.25, 0.5), _Renderer)
     assert choice["weight"] == 0.25 and choice["validation_views"] == ["src2", "src7"]
     assert choice["validation_psnr"]["0.25"] > choice["validation_psnr"]["0.5"] > choice["validation_psnr"]["1.0"]
     assert ev.validation_inputs(25) == [2, 7, 12, 17, 22] and ev.validation_inputs(3) == [1]

@@ -32,6 +32,9 @@ Protocol (per scene, in this order):
 with their confidence maps as per-pixel loss weights, times a synthetic-frame weight chosen from
 ``synthetic_weights`` on the inputs alone (:func:`choose_weight`: fitted without every 5th interior input,
 scored on those), on the run's first seed; the plain "N + sparself" stays unweighted, for comparability.
+The validation fits' synthesized views are synthesized again by that seed's network from the inputs minus
+the held-back ones (:func:`validation_views`), so their pixels carry none of the held-back photos; the
+network itself was still trained on all inputs (retraining per choice would be too slow).
 
 Results: a JSON-able dict (per frame, per scene, mean/std, every setting and versions). A scene that
 fails is recorded with its error and the others go on.
@@ -409,6 +412,8 @@ class _SceneEval:
     ex_dir: Path | None = None
     net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
     net_conf: list[np.ndarray | None] = field(default_factory=list)  # their confidence (T, H, W), per seed
+    net_synth: SynthFn | None = None  # the first seed's network, kept to synthesize the validation views
+    validation: ValidationViews | None = None  # made once per scene, shared by every reconstructor
     baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
     on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step
 
@@ -524,6 +529,8 @@ def _network_synthesis(ev: _SceneEval, network: Callable[[Scene, int], SynthFn] 
     first = ev.cfg.first_seed
     for seed in tqdm(range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
         synth = network(ev.inputs, seed)
+        if seed == first:
+            ev.net_synth = synth
         imgs, _ = _images_and_confidence(synth(ev.inputs, ev.targets))
         held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
         imgs, conf = _images_and_confidence(synth(ev.inputs, ev.planned))
@@ -656,30 +663,61 @@ def validation_inputs(n: int) -> list[int]:
     return list(range(2, n - 1, VALIDATION_EVERY)) or ([n // 2] if n >= 3 else [])
 
 
-def choose_weight(inputs: Scene, planned: list[Frame], images: np.ndarray, confidence: np.ndarray | None,
-                  grid: Sequence[float], fit: Callable[[Scene], object]) -> dict:
-    """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
-    synthesized views) renders those held-back *input* views best (mean PSNR; the first on ties). Reads the
-    inputs' pixels only, never a held-out photo. (The synthesized views were made from all inputs, the
-    held-back ones included, which favours larger weights somewhat.)"""
+def validation_split(inputs: Scene) -> tuple[list[int], Scene]:
+    """(the :func:`validation_inputs` positions, the inputs without them) for choosing the weight."""
     val = validation_inputs(len(inputs))
     if not val:
         raise ConfigError(f"{len(inputs)} input views leave none to choose the synthetic-frame weight on")
-    train = inputs.without(val)
+    return val, inputs.without(val)
+
+
+@dataclass
+class ValidationViews:
+    """The planned views that the weight-choosing fits train on, and the names of the source views they
+    were synthesized from."""
+
+    images: np.ndarray  # (T, H, W, 3)
+    confidence: np.ndarray | None  # (T, H, W)
+    sources: list[str]
+
+
+def validation_views(inputs: Scene, planned: list[Frame], synth: SynthFn) -> ValidationViews:
+    """The planned views synthesized by ``synth`` from the inputs minus the held-back ones, so no pixel of a
+    held-back view reaches the validation fits through them (the network's weights, trained on all inputs,
+    did see them: this removes the leak through the images, not through training)."""
+    _, train = validation_split(inputs)
+    images, confidence = _images_and_confidence(synth(train, planned))
+    return ValidationViews(images, confidence, [f.name for f in train.frames])
+
+
+def choose_weight(inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float],
+                  fit: Callable[[Scene], object]) -> dict:
+    """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
+    planned ``views``) renders those held-back *input* views best (mean PSNR; the first on ties). Reads the
+    inputs' pixels only, never a held-out photo; ``views`` must be synthesized without the held-back inputs
+    (:func:`validation_views`), or their pixels would favour larger weights."""
+    val, train = validation_split(inputs)
+    leaked = sorted(set(views.sources) & {inputs.frames[i].name for i in val})
+    if leaked:
+        raise ValueError(f"validation views synthesized from held-back input(s) {leaked}")
     scores = {}
     for w in grid:
-        r = fit(weighted_scene(train, planned, images, confidence, w))
+        r = fit(weighted_scene(train, planned, views.images, views.confidence, w))
         scores[float(w)] = float(np.mean([metrics.psnr(r.render(inputs.frames[i].pose, inputs.camera(i)),
                                                        inputs.load(i)) for i in val]))
     best = max(scores, key=lambda w: scores[w])
     return {"weight": best, "validation_psnr": {str(w): v for w, v in scores.items()},
-            "validation_views": [inputs.frames[i].name for i in val], "confidence": confidence is not None}
+            "validation_views": [inputs.frames[i].name for i in val], "validation_sources": list(views.sources),
+            "confidence": views.confidence is not None}
 
 
 def _weighted_fits(ev: _SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
-    """'N + sparself, weighted': per seed, the inputs + its views with their confidence as per-pixel loss
-    weights and the synthetic-frame weight :func:`choose_weight` picked on the run's first seed."""
-    choice = choose_weight(ev.inputs, ev.planned, ev.net_planned[0], ev.net_conf[0], ev.cfg.synthetic_weights, fit)
+    """'N + sparself, weighted': per seed, the inputs + its views (synthesized from all inputs) with their
+    confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
+    run's first seed (its network's views synthesized again without the held-back inputs)."""
+    if ev.validation is None:
+        ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synth)
+    choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
     choice["chosen_on_seed"] = ev.cfg.first_seed
     sets, records = SeededSets(), []
     for k, seed in enumerate(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))):
@@ -715,7 +753,9 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None = None, *
     """Run the protocol on one scene. Returns the scene's results (JSON-able).
 
     network: ``make(inputs_scene, seed) -> synthesize`` (default: :func:`network_factory`); None when
-    unavailable is recorded. reconstructors / baselines: override the registries (tests).
+    unavailable is recorded. ``synthesize(sources, targets)`` gets the inputs as sources, and for the
+    weighted row's weight choice (first seed) the inputs minus :func:`validation_inputs`.
+    reconstructors / baselines: override the registries (tests).
     out_dir: where example images are saved (``examples/<scene>/``); None saves none.
     on_partial: called with the results so far after the network, the baselines and each reconstructor
     (long runs can save what they have).

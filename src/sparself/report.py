@@ -408,19 +408,28 @@ def _recon_comparisons(doc: _Doc, c: _Ctx) -> None:
 def _weight_choices(doc: _Doc, c: _Ctx, r: str) -> None:
     """How 'N + sparself, weighted' chose its synthetic-frame weight: per scene and seed, the weight and the
     PSNR of each tried weight on the held-back input views (never on held-out photos)."""
-    items = []
+    items, older = [], False
     for s in c.ok:
         for p in s["densification"].get(r, {}).get(NETWORK_WEIGHTED, {}).get("per_seed", []):
             sel = p.get("selection") or {}
             if "weight" in sel:
                 tried = ", ".join(f"{w}: {v:.2f} dB" for w, v in sel.get("validation_psnr", {}).items())
                 conf = "confidence maps x " if sel.get("confidence") else "no confidence maps; "
+                srcs = sel.get("validation_sources")
+                older |= srcs is None  # results from before the validation views were synthesized apart
+                made = f"; views synthesized from {len(srcs)} inputs without them" if srcs is not None else ""
                 items.append(f"{s['name']} seed {p.get('seed')}: {conf}synthetic-frame weight {sel['weight']} "
                              f"(chosen on seed {sel.get('chosen_on_seed')}; PSNR on held-back inputs "
-                             f"{', '.join(sel.get('validation_views', []))}: {tried})")
+                             f"{', '.join(sel.get('validation_views', []))}{made}: {tried})")
     if items:
+        how = ("Where no source count is given, the validation fits used the views synthesized from all inputs, "
+               "held-back ones included, which favours larger weights." if older else
+               "The validation fits' synthesized views are made again by the chosen seed's network from the inputs "
+               "without the held-back ones, so their pixels carry none of those views; the network was still trained "
+               "on all inputs, the held-back ones among its training targets, which can still favour larger weights.")
         doc.p(f"{r}, N + sparself, weighted: each pixel of a synthesized view counts its confidence x the "
-              "synthetic-frame weight chosen by fitting without the held-back input views named below and scoring those:")
+              "synthetic-frame weight chosen by fitting without the held-back input views named below and scoring "
+              f"those. {how}")
         doc.ul(items)
 
 
