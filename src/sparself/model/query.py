@@ -68,12 +68,19 @@ def source_set(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: n
     """A query's k sources: its pair (:func:`query_pair`: the bracketing one, or the last and first of a
     closed capture) first, then the k - 2 others whose camera centres are nearest to the query's (never
     ``exclude``, the target). centres (S, 3)."""
-    pair = query_pair(positions, centres, q, q_centre, exclude)[0]
+    return query_sources(positions, centres, q, q_centre, k, exclude)[0]
+
+
+def query_sources(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2,
+                  exclude: int = -1) -> tuple[tuple[int, ...], float]:
+    """A query's :func:`source_set` and its fraction t between the set's first two (:func:`query_pair`),
+    from one :func:`query_pair`."""
+    pair, t = query_pair(positions, centres, q, q_centre, exclude)
     if k <= 2:
-        return pair
+        return pair, t
     dist = np.linalg.norm(np.asarray(centres, np.float64) - np.asarray(q_centre, np.float64), axis=1)
     rest = [int(i) for i in np.argsort(dist, kind="stable") if int(i) != exclude and int(i) not in pair]
-    return tuple(pair) + tuple(rest[:k - 2])
+    return tuple(pair) + tuple(rest[:k - 2]), t
 
 
 def camera_centres(w2c: torch.Tensor) -> np.ndarray:
@@ -207,11 +214,10 @@ def leave_one_out(sources: Sources, hw: tuple[int, int] | None = None, k: int = 
     and its source set is its k sources (:func:`source_set`; never itself). hw: output size (default: the
     sources')."""
     pos, centres = sources.positions, camera_centres(sources.w2c)
-    sets = [source_set(pos, centres, float(pos[t]), centres[t], k, exclude=t) for t in range(len(pos))]
-    fr = [query_pair(pos, centres, float(pos[t]), centres[t], exclude=t)[1] for t in range(len(pos))]
+    found = [query_sources(pos, centres, float(pos[t]), centres[t], k, exclude=t) for t in range(len(pos))]
     return Queries(K=sources.K, w2c=sources.w2c, vectors=sources.vectors, positions=pos,
-                   n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device), sets=sets,
-                   hw=hw or sources.hw, fractions=np.asarray(fr, np.float64))
+                   n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device), sets=[s for s, _ in found],
+                   hw=hw or sources.hw, fractions=np.array([t for _, t in found], np.float64))
 
 
 def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.ndarray, index,
@@ -225,11 +231,12 @@ def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.
     q_pos = index_positions(sources.index, index)
     w2c_t = torch.tensor(w2c, dtype=torch.float32, device=dev)
     centres, q_centres = camera_centres(sources.w2c), camera_centres(w2c_t)
+    found = [query_sources(src_pos, centres, float(q), c, k) for q, c in zip(q_pos, q_centres)]
     return Queries(K=torch.tensor(K, dtype=torch.float32, device=dev), w2c=w2c_t,
                    vectors=torch.from_numpy(vectors).to(dev), positions=q_pos,
                    n_before=torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev),
-                   sets=[source_set(src_pos, centres, float(q), c, k) for q, c in zip(q_pos, q_centres)], hw=hw,
-                   fractions=np.array([query_pair(src_pos, centres, float(q), c)[1] for q, c in zip(q_pos, q_centres)]))
+                   sets=[s for s, _ in found], hw=hw,
+                   fractions=np.array([t for _, t in found], np.float64))
 
 
 def flow_aligned(sources: Sources, queries: Queries) -> Queries:
