@@ -73,12 +73,15 @@ def scene_folder(source: Path | str) -> Path:
 
 
 def scene_inputs(scene, what: str = "scene") -> list[Input]:
-    """A scene's folder (see :func:`scene_folder`; it holds the pose files) and its image folders."""
+    """A scene's folder (see :func:`scene_folder`; it holds the pose files), its image folders and the
+    folders of its masks (read back with a dense scene)."""
     found = []
     if getattr(scene, "source", None) is not None:
         found = [Input(f"{what} folder", scene_folder(scene.source))]
     folders = {Path(f.path).parent for f in scene.frames if f.path is not None}
-    return found + [Input(f"{what}'s image folder", d) for d in sorted(folders)]
+    masks = {Path(f.mask).parent for f in scene.frames if f.mask is not None} - folders
+    return found + [Input(f"{what}'s image folder", d) for d in sorted(folders)] + \
+        [Input(f"{what}'s mask folder", d) for d in sorted(masks)]
 
 
 def evaluation_inputs(scenes: Iterable) -> list[Input]:

@@ -117,6 +117,9 @@ class Frame:
     image: an in-memory image (H, W, 3) float32 in [0, 1], used instead of ``path`` when set
            (synthesized views before they are written).
     confidence: a synthesized view's per-pixel confidence (H, W) in [0, 1], written as ``masks/``.
+    mask: a mask file holding the confidence (8-bit, value / 255: nerfstudio's ``mask_path``, sparself's
+          ``masks/``), as read back from a scene; decoded only when used (:meth:`Scene.confidence_map`),
+          so that a megapixel scene does not hold every map in memory. ``confidence`` wins when both are set.
     weight: the frame's loss weight in the in-project reconstructors (in memory only; the evaluation sets it on
             synthesized frames): each pixel counts ``weight`` x its confidence (see :meth:`Scene.pixel_weight`).
     """
@@ -129,6 +132,7 @@ class Frame:
     image: np.ndarray | None = None
     synthetic: bool = False
     confidence: np.ndarray | None = None
+    mask: Path | None = None
     weight: float = 1.0
 
 
@@ -261,16 +265,26 @@ class Scene:
         """Image of frame i at its camera's size (resizing when the scene was :meth:`resized`)."""
         return self.image(i, self.image_size(i))
 
-    def pixel_weight(self, i: int) -> np.ndarray | None:
-        """Frame i's per-pixel loss weight (H, W) at its camera's size: its ``weight`` x its confidence map;
-        None when every pixel counts 1 (weight 1, no map), so reconstructors keep their plain loss."""
+    def confidence_map(self, i: int) -> np.ndarray | None:
+        """Frame i's confidence (H, W) float32 at the size it was made or stored at: its in-memory
+        ``confidence``, else its ``mask`` file (value / 255, :func:`read_mask`), else None (no map)."""
         f = self.frames[i]
-        if f.confidence is None and f.weight == 1.0:
+        if f.confidence is not None:
+            return np.asarray(f.confidence, np.float32)
+        return None if f.mask is None else read_mask(f.mask).astype(np.float32) / 255.0
+
+    def pixel_weight(self, i: int) -> np.ndarray | None:
+        """Frame i's per-pixel loss weight (H, W) at its camera's size: its ``weight`` x its confidence map
+        (:meth:`confidence_map`); None when every pixel counts 1 (weight 1, no map), so reconstructors keep
+        their plain loss."""
+        f = self.frames[i]
+        if f.confidence is None and f.mask is None and f.weight == 1.0:
             return None
         w, h = self.image_size(i)
-        if f.confidence is None:
+        conf = self.confidence_map(i)
+        if conf is None:
             return np.full((h, w), f.weight, np.float32)
-        conf = np.clip(np.nan_to_num(np.asarray(f.confidence, np.float32)), 0.0, 1.0)
+        conf = np.clip(np.nan_to_num(conf), 0.0, 1.0)
         if conf.shape != (h, w):
             conf = np.clip(resize_image(conf, (w, h)), 0.0, 1.0)
         return (f.weight * conf).astype(np.float32)
@@ -472,6 +486,26 @@ def _note_folder_once(path: Path, conv: str | None, rotated: bool) -> None:
     except OSError:
         pass
     note_conversions([path])  # a file the folder listing skips (an odd suffix) is still said once
+
+
+def read_mask(path: Path) -> np.ndarray:
+    """A mask file (nerfstudio's ``mask_path``, sparself's ``masks/``) as (H, W) uint8, 0 = ignore, 255 =
+    full weight; any 8-bit mode is read as its grey level. Raises InputError naming the file when it is
+    missing, empty, not an image or not 8-bit."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: mask file not found")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: mask file is empty (0 bytes)")
+    try:
+        with Image.open(path) as im:
+            if im.mode in _SIXTEEN_BIT or im.mode == "F":
+                raise InputError(f"{path}: mask is a {im.mode} image; masks are 8-bit (0 ignore .. 255 full weight)")
+            return np.asarray(im.convert("L"), dtype=np.uint8)
+    except UnidentifiedImageError:
+        raise InputError(f"{path}: mask is not an image file (cannot identify format)") from None
+    except (OSError, SyntaxError, ValueError) as e:
+        raise InputError(f"{path}: cannot decode mask ({e}); the file may be truncated or corrupt") from None
 
 
 def image_size_of(path: Path) -> tuple[int, int]:

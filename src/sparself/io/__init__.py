@@ -80,7 +80,9 @@ def read_scene(path: Path, images: Path | None = None) -> Scene:
     """Read a scene in any supported format (see :func:`detect_format`).
 
     images: images folder, for COLMAP and LLFF (default ``images/`` beside the model / pose file).
-    Frames come sorted by image name with ``index`` 0..N-1.
+    Frames come sorted by image name with ``index`` 0..N-1. A dense scene's masks (transforms.json's
+    ``mask_path``; ``masks/`` beside ``images/`` for COLMAP and LLFF) come back as the frames' ``mask``,
+    which :meth:`Scene.pixel_weight` reads as confidence.
     """
     path = Path(path)
     fmt = detect_format(path)
@@ -155,8 +157,8 @@ def write_scene_into(scene: Scene, folder: Path, formats: Sequence[str] = FORMAT
                                   else f.image))
     write_marker(folder)
     written = replace(scene, frames=new_frames, source=folder, meta=dict(scene.meta))
-    masks = images != "none" and any(f.confidence is not None for f in scene.frames)
-    if masks:  # synthesized views' confidence (nerfstudio's mask_path)
+    masks = images != "none" and any(f.confidence is not None or f.mask is not None for f in scene.frames)
+    if masks:  # synthesized views' confidence (nerfstudio's mask_path), or the masks a scene was read with
         _dense.write_masks(folder, written, _dense.FACTORS if dense.downscale else ())
     _write_formats(written, folder, formats, text, split, masks)
     if split is not None:

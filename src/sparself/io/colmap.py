@@ -17,6 +17,7 @@ from ..geometry import Pose
 from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of
 from ._common import check_finite, find_image, scene_cameras_dedup
+from .dense import read_masks_beside
 
 log = logging.getLogger(__name__)
 
@@ -241,6 +242,8 @@ def read_colmap(path: Path, images: Path | None = None, *, require_images: bool 
     path: a scene folder holding ``sparse/0`` (or ``sparse``), or the model folder itself.
     images: the images folder; default ``images/`` beside ``sparse/``.
     require_images: a registered image whose file is missing raises InputError (else its path is None).
+    Masks in ``masks/`` beside ``images/`` (``<stem>.png`` for every image, as sparself writes a dense
+    scene) become the frames' ``mask`` (:func:`sparself.io.dense.read_masks_beside`).
     """
     path = Path(path)
     if not path.exists():
@@ -254,8 +257,10 @@ def read_colmap(path: Path, images: Path | None = None, *, require_images: bool 
     rec = load_reconstruction(model_dir)
     if rec.num_reg_images() == 0:
         raise InputError(f"{model_dir}: COLMAP model has no registered images")
-    return scene_from_reconstruction(rec, image_dir if image_dir.is_dir() else None, source=model_dir,
-                                     require_images=require_images)
+    if not image_dir.is_dir():
+        return scene_from_reconstruction(rec, None, source=model_dir, require_images=require_images)
+    scene = scene_from_reconstruction(rec, image_dir, source=model_dir, require_images=require_images)
+    return read_masks_beside(scene, image_dir)  # a dense scene's masks/ (its synthesized views' confidence)
 
 
 def reconstruction_from_scene(scene: Scene):

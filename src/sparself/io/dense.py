@@ -10,6 +10,8 @@
   name gives exactly that order, for any index (negative ones included).
 * **Downscaled copies** ``images_2/4/8`` at ``(w // f, h // f)``: nerfstudio's default ``floor`` rounding
   and gsplat's ``cam.width // factor``; LLFF reads whatever size it finds and scales the focal by 1/f.
+* **Masks** ``masks/<stem>.png`` (and ``masks_<f>``): each view's confidence (:func:`write_masks`), read back
+  by every reader as the frames' ``mask`` (:func:`checked_mask`, :func:`read_masks_beside`).
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 
 from PIL import Image
 
-from ..scene import Scene, load_image, resize_image, save_image
+from ..errors import InputError
+from ..scene import Scene, load_image, read_mask, resize_image, save_image
 
 log = logging.getLogger(__name__)
 
@@ -241,7 +244,8 @@ def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None
     ``images_<f>`` sizes (nearest neighbour, so that ignored pixels stay 0)."""
     for i, f in enumerate(scene.frames):
         w, h = scene.image_size(i)
-        conf = np.ones((h, w), np.float32) if f.confidence is None else np.asarray(f.confidence, np.float32)
+        conf = scene.confidence_map(i)  # in memory, or the mask a scene read back came with
+        conf = np.ones((h, w), np.float32) if conf is None else conf
         mask = Image.fromarray(mask_values(conf), mode="L")
         if mask.size != (w, h):
             mask = mask.resize((w, h), Image.NEAREST)
@@ -249,3 +253,46 @@ def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None
             dst = Path(folder) / sub / mask_name(f.name)
             dst.parent.mkdir(parents=True, exist_ok=True)
             (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.NEAREST)).save(dst)
+
+
+# ---- reading masks back -----------------------------------------------------------------------------
+# A mask value m is read as confidence m / 255: round(255 c) / 255 for what sparself wrote, within 1/255 of c,
+# and 0 where c was below MASK_FLOOR. An all-255 mask (a real photo) is the same as no map.
+
+def checked_mask(path: Path, size: tuple[int, int], listed: str = "") -> Path | None:
+    """``path`` when it is a readable 8-bit mask of the image's size (W, H) that holds a value below 255;
+    None when every pixel is 255 (no map: the plain loss). InputError naming the file otherwise (``listed``
+    says where it was named). Decoded once here to check it; kept as a path, read again when used."""
+    where = f" ({listed})" if listed else ""
+    try:
+        m = read_mask(path)
+    except InputError as e:
+        raise InputError(f"{e}{where}") from None
+    if (m.shape[1], m.shape[0]) != tuple(size):
+        raise InputError(f"{path}: mask is {m.shape[1]}x{m.shape[0]} but its image is {size[0]}x{size[1]}{where}")
+    return None if m.min() == 255 else Path(path)
+
+
+def masks_folder(image_dir: Path) -> Path | None:
+    """The mask folder :func:`write_masks` lays beside an image folder: ``images`` -> ``masks``,
+    ``images_4`` -> ``masks_4``; None for a folder of another name."""
+    name = Path(image_dir).name
+    return Path(image_dir).parent / (MASKS + name[len("images"):]) if name.startswith("images") else None
+
+
+def read_masks_beside(scene: Scene, image_dir: Path) -> Scene:
+    """COLMAP / LLFF: each frame's ``mask`` from ``<stem>.png`` in :func:`masks_folder` (:func:`checked_mask`),
+    when that folder holds one for every frame (as sparself writes them; nerfstudio takes all or none)."""
+    folder = masks_folder(image_dir)
+    if folder is None or not folder.is_dir():
+        return scene
+    files = [folder / mask_name(f.name) for f in scene.frames]
+    found = sum(p.is_file() for p in files)
+    if found < len(files):
+        if found:
+            log.warning("%s: masks for %d of %d images; masks are read only when every image has one",
+                        folder, found, len(files))
+        return scene
+    for i, (f, p) in enumerate(zip(scene.frames, files)):
+        f.mask = checked_mask(p, scene.image_size(i))
+    return scene

@@ -21,6 +21,7 @@ from ..geometry import Pose
 from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of, list_images
 from ._common import check_finite, frame_name_order, unique_cameras
+from .dense import read_masks_beside
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,8 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     If the images are smaller than the stored [H, W] (a downscaled ``images_4`` folder passed as
     ``images``), focal lengths are scaled to them, as NeRF's loader does.
     ``Scene.bounds`` = (min near, max far); per-view bounds are in ``meta['frame_bounds']`` by name.
+    Masks beside the images (``masks/`` for ``images/``, ``masks_4/`` for ``images_4/``; ``<stem>.png`` for
+    every image) become the frames' ``mask`` (:func:`sparself.io.dense.read_masks_beside`).
     """
     path = Path(path)
     npy = path / FILENAME if path.is_dir() else path
@@ -131,8 +134,9 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     for f, cid in zip(frames, ids):
         f.camera_id = cid
     bounds = (float(arr[:, 15].min()), float(arr[:, 16].max()))
-    return Scene(cameras=cameras, frames=frames, bounds=bounds, source=npy,
-                 meta={"format": "llff", "frame_bounds": frame_bounds})
+    scene = Scene(cameras=cameras, frames=frames, bounds=bounds, source=npy,
+                  meta={"format": "llff", "frame_bounds": frame_bounds})
+    return read_masks_beside(scene, image_dir)
 
 
 def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:

@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..geometry import Pose
 from ..names import check_names
 from ..scene import Camera, Frame, Scene, image_size_of
-from .dense import MASKS, mask_name
+from .dense import MASKS, checked_mask, mask_name
 from ._common import check_finite, frame_name_order, order_frames, unique_cameras
 
 log = logging.getLogger(__name__)
@@ -80,8 +80,32 @@ def _resolve(base: Path, file_path: str) -> Path:
     return p
 
 
+def _mask(fr: dict, js: Path, cam: Camera, where: str) -> Path | None:
+    """A frame's ``mask_path`` (relative to ``transforms.json``), checked (:func:`sparself.io.dense.checked_mask`):
+    None when it has none or it is all 255; InputError naming the file when it is missing or unreadable."""
+    if fr.get("mask_path") is None:
+        return None
+    if not isinstance(fr["mask_path"], str):
+        raise InputError(f"{where}: mask_path must be a file name, got {fr['mask_path']!r}")
+    return checked_mask(js.parent / fr["mask_path"], (cam.width, cam.height), f"mask_path of {where}")
+
+
+def _unapply(meta: dict, js: Path) -> np.ndarray:
+    """The inverse of nerfstudio's ``applied_transform`` (identity when there is none). -> (4, 4)."""
+    applied = np.eye(4)
+    if "applied_transform" in meta:
+        A = np.asarray(meta["applied_transform"], dtype=np.float64)
+        if A.shape not in ((3, 4), (4, 4)):
+            raise InputError(f"{js}: applied_transform must be 3x4 or 4x4, got shape {A.shape}")
+        check_finite(A, f"{js}: applied_transform")
+        applied[:3] = A[:3]
+    return np.linalg.inv(applied)
+
+
 def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
-    """Read ``transforms.json`` (or a folder holding it). Frames are sorted by image name."""
+    """Read ``transforms.json`` (or a folder holding it). Frames are sorted by image name. A frame's
+    ``mask_path`` (nerfstudio's per-pixel mask; sparself writes synthesized views' confidence there) becomes
+    its ``mask``: read when used, as confidence value / 255, none for an all-255 mask (a real photo)."""
     path = Path(path)
     js = path / FILENAME if path.is_dir() else path
     if not js.is_file():
@@ -92,14 +116,7 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
         raise InputError(f"{js}: cannot parse JSON ({e})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         raise InputError(f"{js}: expected an object with a non-empty 'frames' list")
-    applied = np.eye(4)
-    if "applied_transform" in meta:
-        A = np.asarray(meta["applied_transform"], dtype=np.float64)
-        if A.shape not in ((3, 4), (4, 4)):
-            raise InputError(f"{js}: applied_transform must be 3x4 or 4x4, got shape {A.shape}")
-        check_finite(A, f"{js}: applied_transform")
-        applied[:3] = A[:3]
-    unapply = np.linalg.inv(applied)
+    unapply = _unapply(meta, js)
     glob_keys = {k: v for k, v in meta.items() if k != "frames"}
     frames, cams = [], []
     for i, fr in enumerate(meta["frames"]):
@@ -128,7 +145,8 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
             img_path = img
         cams.append(_camera({**glob_keys, **fr}, img_path, where))
         name = Path(str(fr["file_path"])).name if img_path is None else img_path.name
-        frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path, synthetic=fr.get("synthetic") is True))
+        frames.append(Frame(name=name, pose=Pose.from_c2w(c2w), path=img_path, synthetic=fr.get("synthetic") is True,
+                            mask=None if img_path is None else _mask(fr, js, cams[-1], where)))
     check_names([f.name for f in frames], js)
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
