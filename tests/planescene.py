@@ -40,6 +40,21 @@ def camera_line(xs, size: tuple[int, int], focal: float, image: ImageFn, bounds=
     return Scene({1: cam}, frames, bounds=bounds)
 
 
+def on_disk(scene: Scene, folder) -> Scene:
+    """The scene's in-memory images written to ``folder/images/<name>`` and read from there (``path`` set,
+    ``image`` dropped): photos on disk, as a reader would give them."""
+    from pathlib import Path
+
+    from sparself.scene import save_image
+
+    (Path(folder) / "images").mkdir(parents=True)
+    for f in scene.frames:
+        f.path = Path(folder) / "images" / f.name
+        save_image(f.path, f.image)
+        f.image = None
+    return scene
+
+
 # ---- textured plane ---------------------------------------------------------------------------------
 
 def texture(X: np.ndarray, Y: np.ndarray, seed: int = 0) -> np.ndarray:

@@ -14,22 +14,17 @@ from PIL import Image
 
 from sparself.geometry import Pose, interpolate_pose, rotmat_to_quat
 from sparself.io import DenseInfo, read_colmap, read_llff, read_nerfstudio, read_scene, write_colmap, write_scene
-from planescene import camera_line, noise
+from planescene import camera_line, noise, on_disk
 from sparself.io.dense import EVERY, downscaled_size, n_test_positions, safe_order
-from sparself.scene import Frame, Scene, image_size_of, save_image
+from sparself.scene import Frame, Scene, image_size_of
 
 W, H, FOCAL = 27, 18, 24.0  # odd sizes: w // f and round(w / f) differ
 
 
 def _photos(folder: Path, n: int, ext: str = ".png") -> Scene:
     """n photos of random pixels on disk (000.png, ...), cameras on the x axis looking at 50 sparse points."""
-    scene = camera_line([0.1 * i for i in range(n)], (W, H), FOCAL, lambda pose, cam, i: noise(H, W, i),
-                        bounds=(1.0, 5.0), name=lambda i: f"{i:03d}{ext}")
-    (folder / "images").mkdir(parents=True)
-    for f in scene.frames:
-        f.path = folder / "images" / f.name
-        save_image(f.path, f.image)
-        f.image = None
+    scene = on_disk(camera_line([0.1 * i for i in range(n)], (W, H), FOCAL, lambda pose, cam, i: noise(H, W, i),
+                                bounds=(1.0, 5.0), name=lambda i: f"{i:03d}{ext}"), folder)
     rng = np.random.default_rng(0)
     scene.points = np.column_stack([rng.uniform(-0.3, 0.1 * n + 0.3, 50), rng.uniform(-0.5, 0.5, 50),
                                     rng.uniform(2.0, 4.0, 50)])

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from planescene import camera_line, noise
+from planescene import camera_line, noise, on_disk
 from sparself.cli import main
 from sparself.errors import InputError
 from sparself.geometry import interpolate_pose
 from sparself.io import DenseInfo, read_scene, write_scene
 from sparself.io.dense import MASK_FLOOR
-from sparself.scene import Frame, Scene, save_image
+from sparself.scene import Frame, Scene
 
 W, H = 14, 10
 
@@ -33,13 +33,8 @@ def _confidence(seed: int) -> np.ndarray:
 
 def _dense(folder: Path) -> Scene:
     """5 photos on disk + 2 synthesized views (in memory, with confidence maps) between them."""
-    scene = camera_line([0.1 * i for i in range(5)], (W, H), 12.0, lambda pose, cam, i: noise(H, W, i),
-                        bounds=(1.0, 5.0), name=lambda i: f"{i:02d}.png")
-    (folder / "images").mkdir(parents=True)
-    for f in scene.frames:
-        f.path = folder / "images" / f.name
-        save_image(f.path, f.image)
-        f.image = None
+    scene = on_disk(camera_line([0.1 * i for i in range(5)], (W, H), 12.0, lambda pose, cam, i: noise(H, W, i),
+                                bounds=(1.0, 5.0), name=lambda i: f"{i:02d}.png"), folder)
     syn = [Frame(f"novel_{k}.png", interpolate_pose(scene.frames[k].pose, scene.frames[k + 1].pose, 0.5),
                  index=k + 0.5, image=noise(H, W, 10 + k), synthetic=True, confidence=_confidence(k)) for k in (1, 2)]
     return replace(scene, frames=sorted(scene.frames + syn, key=lambda f: f.index))
@@ -146,7 +141,7 @@ def _broken(folder: Path, tmp_path: Path, how: str) -> tuple[Path, Path]:
     return copy, mask
 
 
-@pytest.mark.parametrize("how,problem", [("missing", "mask file not found"), ("corrupt", "mask is not an image file"),
+@pytest.mark.parametrize("how,problem", [("missing", "no such mask file"), ("corrupt", "mask is not an image file"),
                                          ("size", f"mask is {W + 1}x{H} but its image is {W}x{H}")])
 def test_a_bad_mask_named_by_transforms_json_is_one_line_naming_it(dense, tmp_path, capsys, how, problem):
     _, folder = dense

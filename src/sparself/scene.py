@@ -437,6 +437,16 @@ def note_conversions(paths: Sequence[Path]) -> None:
             log.warning("%s: %d %s image(s) converted to RGB%s: %s", folder, len(names), what, why, _some(names))
 
 
+def _nonempty_file(path: Path, kind: str = "file") -> Path:
+    """``path`` when it is a file with something in it; else InputError naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such {kind}")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: {kind} is empty (0 bytes)")
+    return path
+
+
 def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = True) -> np.ndarray:
     """Decode an image file to (H, W, 3) float32 RGB in [0, 1].
 
@@ -444,11 +454,7 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
     dropped), 16-bit images keep their precision. size: optional (W, H) to resize to (area filter).
     Raises InputError naming the file when it is empty, truncated or not an image.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    if path.stat().st_size == 0:
-        raise InputError(f"{path}: file is empty (0 bytes)")
+    path = _nonempty_file(path)
     try:
         with Image.open(path) as im:
             im.load()
@@ -492,11 +498,7 @@ def read_mask(path: Path) -> np.ndarray:
     """A mask file (nerfstudio's ``mask_path``, sparself's ``masks/``) as (H, W) uint8, 0 = ignore, 255 =
     full weight; any 8-bit mode is read as its grey level. Raises InputError naming the file when it is
     missing, empty, not an image or not 8-bit."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: mask file not found")
-    if path.stat().st_size == 0:
-        raise InputError(f"{path}: mask file is empty (0 bytes)")
+    path = _nonempty_file(path, "mask file")
     try:
         with Image.open(path) as im:
             if im.mode in _SIXTEEN_BIT or im.mode == "F":
