@@ -271,7 +271,7 @@ class Scene:
         f = self.frames[i]
         if f.confidence is not None:
             return np.asarray(f.confidence, np.float32)
-        return None if f.mask is None else read_mask(f.mask).astype(np.float32) / 255.0
+        return None if f.mask is None else np.divide(read_mask(f.mask), 255.0, dtype=np.float32)
 
     def pixel_weight(self, i: int) -> np.ndarray | None:
         """Frame i's per-pixel loss weight (H, W) at its camera's size: its ``weight`` x its confidence map
@@ -284,10 +284,11 @@ class Scene:
         conf = self.confidence_map(i)
         if conf is None:
             return np.full((h, w), f.weight, np.float32)
-        conf = np.clip(np.nan_to_num(conf), 0.0, 1.0)
+        if f.confidence is not None:  # a map made in memory may hold NaN or go past [0, 1]; a mask's cannot
+            conf = np.clip(np.nan_to_num(conf), 0.0, 1.0)
         if conf.shape != (h, w):
             conf = np.clip(resize_image(conf, (w, h)), 0.0, 1.0)
-        return (f.weight * conf).astype(np.float32)
+        return (f.weight * conf).astype(np.float32, copy=False)
 
     def load_all(self) -> np.ndarray:
         """(N, H, W, 3) images at the cameras' size. All frames must share one image size."""
