@@ -75,6 +75,7 @@ from .results import (EXTRAPOLATED, INTERPOLATED, NETWORK, NETWORK_WEIGHTED, Fra
 from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
 from .synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
+from .triangulate import triangulate
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +83,8 @@ log = logging.getLogger(__name__)
 SynthFn = Callable[[Scene, list], "np.ndarray | Synthesized"]
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
 PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
+POINTS_CHOICES = ("inputs", "capture")  # where the inputs' sparse points come from (EvalConfig.points)
+MIN_POINTS = 100  # fewer triangulated points are dropped: the reconstructors' fallback (recon/splat.py, gsplat.py)
 VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight
 
 
@@ -129,6 +132,10 @@ class EvalConfig:
         "held-back inputs wins (one fit per weight and reconstructor, plus one refit per seed)")
     examples: int = option(1, "held-out frames per scene saved as image grids for the report")
     lpips: bool = option(True, "skip LPIPS")
+    points: str = option("inputs", "the inputs' sparse points (3DGS initial Gaussians, NeRF/MPI depth range): 'inputs' "
+                         "triangulates them from the N inputs' photos at their known poses (the capture's own points, "
+                         "made from every photo, held-out ones included, are dropped); 'capture' keeps the capture's "
+                         "points (as runs before this option)", choices=POINTS_CHOICES)
     progress: bool = option(True, "progress bars", cli=False)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -145,6 +152,8 @@ class EvalConfig:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
             raise ConfigError(f"extrapolation_margin must not be negative, got {self.extrapolation_margin}")
+        if self.points not in POINTS_CHOICES:
+            raise ConfigError(f"points must be one of {', '.join(POINTS_CHOICES)}, got {self.points!r}")
         if self.weighted and (not self.synthetic_weights or min(self.synthetic_weights) < 0):
             raise ConfigError(f"synthetic_weights must be one or more weights >= 0, got {self.synthetic_weights}")
 
@@ -461,6 +470,29 @@ def _sorted_resized(scene: Scene, cfg: EvalConfig) -> Scene:
     return replace(full, frames=[replace(f, index=float(k)) for k, f in enumerate(full.frames)])
 
 
+def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig, res: dict) -> Scene:
+    """``full`` with its sparse points set by ``cfg.points``, recorded in ``res["input_points"]``.
+
+    "inputs": triangulated from the photos of frames ``inputs`` alone (at their original ``cameras``, up to
+    800 px), never a held-out one; fewer than MIN_POINTS are dropped (the reconstructors then fall back as on a
+    capture without points; noted). "capture": the capture's own points. Called before anything is fitted:
+    ``ev.inputs`` inherits these points, and every row of the scene (N, N + sparself, weighted, densify
+    baselines, oracle) fits on ``ev.inputs`` plus frames, so all rows share the same points."""
+    if cfg.points == "capture":
+        res["input_points"] = {"source": "capture", "points": 0 if full.points is None else len(full.points)}
+        return full
+    tri = triangulate(replace(full.subset(inputs), cameras=cameras))
+    res["input_points"] = {"source": "inputs", "points": len(tri.points), "views": tri.views, "pairs": tri.pairs,
+                           "matches": tri.matches, "seconds": tri.seconds}
+    meta = {k: v for k, v in full.meta.items() if k != "point_colors"}
+    if len(tri.points) < MIN_POINTS:
+        res["notes"].append(f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
+                            "the reconstructors start without sparse points")
+        return replace(full, points=None, meta=meta)
+    meta["point_colors"] = np.round(tri.colors * 255).astype(np.uint8)
+    return replace(full, points=tri.points, meta=meta)
+
+
 def _protocol(ev: _SceneEval, plan_info: list[dict]) -> dict:
     """What the report says about the split, and the cameras for its plot."""
     full, split = ev.full, ev.split
@@ -489,6 +521,7 @@ def _start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None) -> _SceneE
     split = make_split(len(full), cfg)
     if len(split.eval) == 0:
         raise InputError(f"{name}: {len(full)} frames leave no interior frame to hold out")
+    full = input_points(full, scene.cameras, split.inputs, cfg, res)
     scored = split.eval
     if cfg.max_eval and len(scored) > cfg.max_eval:
         scored = [scored[p] for p in np.round(np.linspace(0, len(scored) - 1, cfg.max_eval)).astype(int)]

@@ -303,10 +303,24 @@ def _protocol_section(doc: _Doc, c: _Ctx) -> None:
         "Share of oracle gain = "
         "(PSNR(N+synth) − PSNR(N)) / (PSNR(oracle) − PSNR(N)).",
         f"sparself numbers are mean ± std over {settings.get('seeds', 3)} network seed(s) of the per-scene means.",
+        _points_line(settings.get("points", "capture")),
     ])
     for s in c.ok:
+        pts = s.get("input_points")
+        pts = f"; sparse points: {pts['points']} (from the {pts['source']})" if pts else ""
         doc.p(f"{s['name']}: {s['protocol']['rule']}. Held out: {', '.join(s['protocol']['held_out'])}; "
-              f"scored: {len(s['protocol']['scored'])}; inputs: {', '.join(s['protocol']['inputs'])}.")
+              f"scored: {len(s['protocol']['scored'])}; inputs: {', '.join(s['protocol']['inputs'])}{pts}.")
+
+
+def _points_line(points: str) -> str:
+    """How the reconstructors' sparse points were made (results from before the option used the capture's)."""
+    if points == "inputs":
+        return ("Sparse points (3DGS initial Gaussians, NeRF's depth range): triangulated from the N inputs' photos "
+                "alone at their known poses; the capture's own points (made from all its photos, held-out ones "
+                "included) are not used. Every row of a scene starts from the same points.")
+    return ("Sparse points: the capture's own, triangulated from all its photos, held-out ones included: through "
+            "them the held-out photos reach the reconstructions' starting points (NeRF's depth range, 3DGS "
+            "initial Gaussians).")
 
 
 def _not_run_section(doc: _Doc, c: _Ctx) -> None:
