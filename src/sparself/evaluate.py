@@ -132,10 +132,11 @@ class EvalConfig:
         "held-back inputs wins (one fit per weight and reconstructor, plus one refit per seed)")
     examples: int = option(1, "held-out frames per scene saved as image grids for the report")
     lpips: bool = option(True, "skip LPIPS")
-    points: str = option("inputs", "the inputs' sparse points (3DGS initial Gaussians, NeRF/MPI depth range): 'inputs' "
-                         "triangulates them from the N inputs' photos at their known poses (the capture's own points, "
-                         "made from every photo, held-out ones included, are dropped); 'capture' keeps the capture's "
-                         "points (as runs before this option)", choices=POINTS_CHOICES)
+    points: str = option("inputs", "the inputs' sparse points (3DGS initial Gaussians, NeRF's scene box, the depth "
+                         "range of scenes without bounds): 'inputs' triangulates them from the N inputs' photos at their "
+                         "known poses (the capture's own points, made from every photo, held-out ones included, are "
+                         "dropped); 'capture' keeps the capture's points (as runs before this option)",
+                         choices=POINTS_CHOICES)
     progress: bool = option(True, "progress bars", cli=False)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -484,7 +485,7 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
     tri = triangulate(replace(full.subset(inputs), cameras=cameras))
     res["input_points"] = {"source": "inputs", "points": len(tri.points), "views": tri.views, "pairs": tri.pairs,
                            "matches": tri.matches, "seconds": tri.seconds}
-    meta = {k: v for k, v in full.meta.items() if k != "point_colors"}
+    meta = {k: v for k, v in full.meta.items() if k not in ("point_colors", "observations")}  # the capture's points
     if len(tri.points) < MIN_POINTS:
         res["notes"].append(f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
                             "the reconstructors start without sparse points")

@@ -34,9 +34,9 @@ class TriangulateConfig:
     degrees between the two rays of a match."""
 
     max_side: int = 800
-    neighbours: int = 3
+    neighbours: int = 4
     features: int = 4000
-    ratio: float = 0.75
+    ratio: float = 0.8
     max_error: float = 2.0
     min_angle: float = 1.5
 
