@@ -18,7 +18,12 @@ Protocol (per scene, in this order):
 3. **Sparse captures** (too few frames, e.g. 16-view Middlebury rings): every other interior frame is
    held out and the rest are the inputs. No real photos lie between inputs except held-out ones, so no
    oracle is run and midpoints are not scored separately (the held-out frames are the midpoints).
-4. Two questions:
+4. **Sparse points** (``points``): the capture's own points were made from all its photos, held-out ones
+   included, so by default they are dropped and points are triangulated from the N inputs' photos at their
+   known poses (:func:`input_points`, sparself.triangulate), before anything is fitted. Every row of a
+   scene (N, N + synthesized, weighted, oracle) and the network's and baselines' depth range start from
+   these same points. ``points="capture"`` keeps the capture's points (runs before this option).
+5. Two questions:
    - *View synthesis*: the network (``seeds`` seeds) and every baseline synthesize the held-out
      poses from the inputs alone; scored against the real photos. Held-out frames beyond the first or
      last input (in the margins) are *extrapolated*, the others *interpolated*: every score is also
