@@ -348,7 +348,7 @@ def _export_options(p: argparse.ArgumentParser) -> None:
     from .options import add_options
     from .pipeline import DensifyConfig
 
-    export = ("downscaled",)
+    export = ("downscaled", "triangulate")
     add_options(p, DensifyConfig, skip=tuple(f.name for f in dataclasses.fields(DensifyConfig) if f.name not in export))
 
 
@@ -421,7 +421,7 @@ def _run_synthesize(args) -> int:
 
     t0 = time.perf_counter()
     dense = synthesize_plan(args.run, args.plan, args.out, scene_path=args.scene, overwrite=args.overwrite,
-                            downscaled=args.downscaled)
+                            downscaled=args.downscaled, triangulate=args.triangulate)
     print(f"wrote {_views(dense)} -> {args.out} (images/, sparse/0, poses_bounds.npy, transforms.json) "
           f"in {_took(t0)}")
     return 0
@@ -456,7 +456,7 @@ def _densify_config(args, **kw):
     from .pipeline import DensifyConfig
 
     return DensifyConfig(train=_train_config(args), plan=_plan_config(args), out_size=args.out_size,
-                         downscaled=args.downscaled, **kw)
+                         downscaled=args.downscaled, triangulate=args.triangulate, **kw)
 
 
 def _run_densify(args) -> int:

@@ -80,7 +80,7 @@ from .results import (EXTRAPOLATED, INTERPOLATED, NETWORK, NETWORK_WEIGHTED, Fra
 from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
 from .synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
-from .triangulate import triangulate
+from .triangulate import MIN_POINTS, triangulate, with_points
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +89,6 @@ SynthFn = Callable[[Scene, list], "np.ndarray | Synthesized"]
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
 PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
 POINTS_CHOICES = ("inputs", "capture")  # where the inputs' sparse points come from (EvalConfig.points)
-MIN_POINTS = 100  # fewer triangulated points are dropped: the reconstructors' fallback (recon/splat.py, gsplat.py)
 VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight
 
 
@@ -490,13 +489,12 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
     tri = triangulate(replace(full.subset(inputs), cameras=cameras))
     res["input_points"] = {"source": "inputs", "points": len(tri.points), "views": tri.views, "pairs": tri.pairs,
                            "matches": tri.matches, "seconds": tri.seconds}
-    meta = {k: v for k, v in full.meta.items() if k not in ("point_colors", "observations")}  # the capture's points
     if len(tri.points) < MIN_POINTS:
         res["notes"].append(f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
                             "the reconstructors start without sparse points")
+        meta = {k: v for k, v in full.meta.items() if k not in ("point_colors", "observations")}  # the capture's
         return replace(full, points=None, meta=meta)
-    meta["point_colors"] = np.round(tri.colors * 255).astype(np.uint8)
-    return replace(full, points=tri.points, meta=meta)
+    return with_points(full, tri)
 
 
 def _protocol(ev: _SceneEval, plan_info: list[dict]) -> dict:

@@ -18,6 +18,7 @@ from .scene import Scene, preloaded
 from .sfm import SfmConfig, recover_poses
 from .synthesize import densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
+from .triangulate import ensure_points
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +35,8 @@ class DensifyConfig:
     overwrite: bool = False
     keep_run: bool = True
     downscaled: bool = option(True, "skip the images_2/4/8 copies beside images/ (large scenes)")
+    triangulate: bool = option(True, "write a capture without sparse points without them (by default they are "
+                                     "triangulated from its real photos at their known poses)")
 
 
 def read_input(path: Path, cfg: DensifyConfig) -> Scene:
@@ -63,6 +66,7 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
     scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg)
     check_output_dir(out, cfg.overwrite, scene_inputs(scene))  # before any training
+    photos = scene  # at their own size: triangulation matches them at up to 800 px
     if cfg.out_size:
         scene = preloaded(scene.resized(cfg.out_size))
     scene, targets = plan_sequence(scene, cfg.plan)  # sources on the plan's index scale
@@ -70,13 +74,15 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     # on the crop size, not on the image size
     long_side = max(max(c.width, c.height) for c in scene.cameras.values())
     tcfg = replace(cfg.train, size=long_side)
+    holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
         syn = synthesize_with_confidence(run, scene, targets)
-        dense = densify_scene(scene, targets, syn.images, syn.confidence)
+        # points only for the written scene: training and synthesis are the same with or without them
+        written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
+        dense = densify_scene(written, targets, syn.images, syn.confidence)
         sio.write_scene_into(dense, tmp / "scene", dense=sio.DenseInfo(
-            "../run" if cfg.keep_run else None, "../plan.json", tuple(scene.frames[i].name for i in tcfg.holdout),
-            cfg.downscaled))
+            "../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled))
         # the plan and a camera plot beside the scene, so users see where the new views are
         save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
         plot_cameras(scene, planned=targets, path=tmp / "cameras.png",
@@ -84,3 +90,9 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         if not cfg.keep_run:
             shutil.rmtree(tmp / "run")
     return dense
+
+
+def _with_points(scene: Scene, photos: Scene, holdout: tuple[str, ...]) -> Scene:
+    """``scene`` with sparse points triangulated from the real photos of ``photos`` (never a held-out one)
+    when it has too few (:func:`sparself.triangulate.ensure_points`)."""
+    return ensure_points(scene, photos.subset([i for i, f in enumerate(photos.frames) if f.name not in holdout]))

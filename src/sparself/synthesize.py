@@ -24,6 +24,7 @@ from .outputs import Input, check_not_input, check_output_dir, scene_folder, sce
 from .plan import load_plan, order_frames, reindexed
 from .scene import Frame, Scene, one_size
 from .train import Run, amp_dtype, autocast, load_run
+from .triangulate import ensure_points
 
 log = logging.getLogger(__name__)
 
@@ -113,9 +114,10 @@ def _check_order(run_path: Path, plan: Path) -> None:
 
 
 def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, scene_path: Path | str | None = None,
-                    overwrite: bool = False, downscaled: bool = True) -> Scene:
+                    overwrite: bool = False, downscaled: bool = True, triangulate: bool = True) -> Scene:
     """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene.
-    downscaled: also write the ``images_2/4/8`` copies."""
+    downscaled: also write the ``images_2/4/8`` copies; triangulate: a scene without sparse points gets
+    points triangulated from its real photos (:func:`sparself.triangulate.ensure_points`)."""
     _check_order(Path(run_path), Path(plan))
     inputs = [Input("run folder", run_path), Input("plan file", plan), Input("scene", scene_path)]
     check_not_input(Path(out), inputs)
@@ -134,6 +136,6 @@ def synthesize_plan(run_path: Path | str, plan: Path | str, out: Path | str, *, 
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))
     syn = synthesize_with_confidence(run, scene, targets)
-    dense = densify_scene(scene, targets, syn.images, syn.confidence)
+    dense = densify_scene(ensure_points(scene) if triangulate else scene, targets, syn.images, syn.confidence)
     return sio.write_scene(dense, Path(out), overwrite=overwrite,
                            dense=sio.DenseInfo(str(run_path), str(plan), downscale=downscaled))

@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .scene import Camera, Scene
 
 log = logging.getLogger(__name__)
+
+MIN_POINTS = 100  # fewer points are not used: a scene starts from no points (the reconstructors' fallback)
 
 
 @dataclass
@@ -222,3 +224,27 @@ def triangulate(scene: Scene, config: TriangulateConfig | None = None) -> Triang
     out.seconds = time.perf_counter() - t0
     (log.info if len(out.points) else log.warning)("triangulation: %s", out.summary())
     return out
+
+
+def with_points(scene: Scene, tri: Triangulated) -> Scene:
+    """``scene`` with the triangulated points and their colours (uint8 ``meta['point_colors']``, as the
+    COLMAP and PLY writers read them); the scene's own points' colours and SfM observations are dropped."""
+    meta = {k: v for k, v in scene.meta.items() if k not in ("point_colors", "observations")}
+    meta["point_colors"] = np.round(tri.colors * 255).astype(np.uint8)
+    return replace(scene, points=tri.points, meta=meta)
+
+
+def ensure_points(scene: Scene, photos: Scene | None = None, config: TriangulateConfig | None = None) -> Scene:
+    """``scene`` unchanged if it has MIN_POINTS sparse points or more, else with points triangulated from
+    the real photos of ``photos`` (default ``scene``; its synthetic frames are never used) when that gives
+    MIN_POINTS or more; otherwise ``scene`` unchanged (logged)."""
+    if scene.points is not None and len(scene.points) >= MIN_POINTS:
+        return scene
+    tri = triangulate(scene if photos is None else photos, config)
+    if len(tri.points) < MIN_POINTS:
+        log.warning("%d points triangulated from %d photos (< %d): the scene is written without them",
+                    len(tri.points), tri.views, MIN_POINTS)
+        return scene
+    log.info("triangulated %d points from %d photos at their known poses (%.1f s)", len(tri.points), tri.views,
+             tri.seconds)
+    return with_points(scene, tri)

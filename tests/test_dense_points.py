@@ -1,0 +1,136 @@
+"""The dense scene's sparse points: a capture without points (LLFF, transforms.json without a cloud) gets
+points triangulated from its real photos at their known poses (never a synthesized or held-out view); a
+capture with points keeps exactly its own."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from planescene import DEPTH, camera_line, noise_scene, on_disk, plane_image, texture
+from sparself import triangulate as tr
+from sparself.io import read_nerfstudio, read_scene, write_scene
+from sparself.pipeline import DensifyConfig, densify
+from sparself.plan import PlanConfig
+from sparself.triangulate import MIN_POINTS, ensure_points
+
+SIZE, FOCAL = (240, 160), 80.0  # the photos: enough SIFT features on the textured plane
+OUT_SIZE = 48  # the written scene and training: tiny
+
+
+def _capture(folder, formats) -> None:
+    """6 photos of the plane Z = DEPTH on disk, posed in ``formats`` (no sparse points)."""
+    scene = on_disk(camera_line([0.1 * i for i in range(6)], SIZE, FOCAL, plane_image(),
+                                name="p{:02d}.png".format), folder / "photos")
+    write_scene(scene, folder / "capture", formats)
+
+
+def _spy(monkeypatch) -> list[list[str]]:
+    """The frames (name, synthetic) of every scene triangulate() is given."""
+    calls, real = [], tr.triangulate
+
+    def spy(scene, config=None):
+        calls.append([(f.name, f.synthetic) for f in scene.frames])
+        return real(scene, config)
+
+    monkeypatch.setattr(tr, "triangulate", spy)
+    return calls
+
+
+def _densify(src, out, tiny_cfg) -> None:
+    cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(5,)), plan=PlanConfig(n_mid=2, n_extra=1),
+                        out_size=OUT_SIZE, downscaled=False)
+    densify(src, out, cfg)
+
+
+def _reprojection_errors(scene) -> list[float]:
+    """Every frame's observations against the projection of their points at its pose (px)."""
+    errs = []
+    for f in scene.frames:
+        obs = scene.meta["observations"][f.name]
+        X = scene.points[obs.point] @ f.pose.R.T + f.pose.tvec
+        uv = X @ scene.cameras[f.camera_id].K.T
+        errs.extend(np.linalg.norm(uv[:, :2] / uv[:, 2:] - obs.xy, axis=1))
+    return errs
+
+
+@pytest.mark.parametrize("fmt", ["llff", "nerfstudio"])
+def test_a_capture_without_points_is_written_with_points_from_its_real_photos(tmp_path, tiny_cfg, monkeypatch,
+                                                                               caplog, fmt):
+    _capture(tmp_path, (fmt,))
+    calls = _spy(monkeypatch)
+    with caplog.at_level(logging.INFO, logger="sparself"):
+        _densify(tmp_path / "capture", tmp_path / "out", tiny_cfg)
+    # the 5 training photos at their own size: no synthesized view, not the held-out p05.png
+    assert calls == [[(f"p{i:02d}.png", False) for i in range(5)]]
+    folder = tmp_path / "out" / "scene"
+    back = read_scene(folder)  # the COLMAP model
+    n = len(back.points)
+    assert n >= MIN_POINTS and f"triangulated {n} points from 5 photos" in caplog.text
+    assert np.median(np.abs(back.points[:, 2] - DEPTH)) < 0.01 * DEPTH
+    colors = back.meta["point_colors"] / 255.0
+    assert np.median(np.abs(colors - texture(back.points[:, 0], back.points[:, 1]))) < 0.05
+    assert sum(f.synthetic for f in back.frames) == 3 and len(back) == 9
+    # tracks in every frame (synthesized ones too), each observation at its point's projection
+    assert all(len(back.meta["observations"][f.name].point) for f in back.frames)
+    assert max(_reprojection_errors(back)) < 1e-3
+    # nerfstudio's cloud: the same points and colours
+    assert json.loads((folder / "transforms.json").read_text())["ply_file_path"] == "sparse_pc.ply"
+    ns = read_nerfstudio(folder / "transforms.json")
+    np.testing.assert_allclose(ns.points, back.points, atol=1e-5)
+    np.testing.assert_array_equal(ns.meta["point_colors"], back.meta["point_colors"])
+
+
+def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeypatch):
+    _capture(tmp_path, ("colmap",))
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(-0.5, 1.0, MIN_POINTS), rng.uniform(-0.4, 0.4, MIN_POINTS),
+                           np.full(MIN_POINTS, DEPTH)])
+    colors = rng.integers(0, 256, (MIN_POINTS, 3), dtype=np.uint8)
+    cap = read_scene(tmp_path / "capture")
+    cap.points, cap.meta["point_colors"] = pts, colors
+    write_scene(cap, tmp_path / "with_points", ("colmap",))
+    calls = _spy(monkeypatch)
+    _densify(tmp_path / "with_points", tmp_path / "out", tiny_cfg)
+    back = read_scene(tmp_path / "out" / "scene")
+    assert calls == []
+    assert len(back.points) >= MIN_POINTS  # theirs, plus one on the axis of a view that sees none
+    np.testing.assert_array_equal(back.points[:MIN_POINTS], pts)
+    np.testing.assert_array_equal(back.meta["point_colors"][:MIN_POINTS], colors)
+
+
+def test_too_few_points_leave_the_scene_as_it_was(caplog):
+    scene = noise_scene(4, size=(64, 48))  # random pixels: nothing consistent to match
+    scene.points = np.zeros((MIN_POINTS - 1, 3))
+    with caplog.at_level(logging.WARNING, logger="sparself"):
+        assert ensure_points(scene) is scene
+    assert f"(< {MIN_POINTS}): the scene is written without them" in caplog.text
+
+
+def test_few_own_points_are_replaced_by_triangulated_ones():
+    scene = camera_line([0.1 * i for i in range(5)], SIZE, FOCAL, plane_image())
+    scene.points, scene.meta["point_colors"] = np.zeros((3, 3)), np.zeros((3, 3), np.uint8)
+    out = ensure_points(scene)
+    assert len(out.points) >= MIN_POINTS and out.meta["point_colors"].shape == out.points.shape
+    assert out.meta["point_colors"].dtype == np.uint8 and len(scene.points) == 3  # the input is not modified
+
+
+def test_no_triangulate_reaches_densify_and_synthesize(monkeypatch):
+    from sparself import cli, pipeline, synthesize
+    from sparself.scene import Scene
+
+    seen = {}
+
+    def keep(key, value):
+        seen[key] = value
+        return Scene({}, [])
+
+    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg: keep("densify", cfg.triangulate))
+    monkeypatch.setattr(synthesize, "synthesize_plan", lambda *a, triangulate, **k: keep("synth", triangulate))
+    for flag, want in (([], True), (["--no-triangulate"], False)):
+        assert cli.main(["densify", "p", "--out", "o", "-q", *flag]) == 0
+        assert cli.main(["synthesize", "r", "--plan", "x.json", "--out", "o", "-q", *flag]) == 0
+        assert seen == {"densify": want, "synth": want}
