@@ -102,12 +102,30 @@ def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeyp
     np.testing.assert_array_equal(back.meta["point_colors"][:MIN_POINTS], colors)
 
 
+def test_synthesize_gives_the_run_scene_points_from_its_training_photos(tmp_path, tiny_cfg, monkeypatch):
+    from sparself.plan import plan_poses, save_plan
+    from sparself.synthesize import synthesize_plan
+    from sparself.train import train_scene
+
+    _capture(tmp_path, ("llff",))
+    src = tmp_path / "capture"
+    train_scene(src, tmp_path / "run", tiny_cfg(epochs=1, size=OUT_SIZE, holdout=(5,)))
+    scene = read_scene(src)
+    save_plan(tmp_path / "plan.json", plan_poses(scene, PlanConfig(n_mid=1, n_extra=0)), scene=scene)
+    calls = _spy(monkeypatch)
+    synthesize_plan(tmp_path / "run", tmp_path / "plan.json", tmp_path / "dense", downscaled=False)
+    assert calls == [[(f"p{i:02d}.png", False) for i in range(5)]]
+    back = read_scene(tmp_path / "dense")
+    assert len(back.points) >= MIN_POINTS and np.median(np.abs(back.points[:, 2] - DEPTH)) < 0.01 * DEPTH
+    assert (tmp_path / "dense" / "sparse_pc.ply").is_file()
+
+
 def test_too_few_points_leave_the_scene_as_it_was(caplog):
     scene = noise_scene(4, size=(64, 48))  # random pixels: nothing consistent to match
     scene.points = np.zeros((MIN_POINTS - 1, 3))
     with caplog.at_level(logging.WARNING, logger="sparself"):
         assert ensure_points(scene) is scene
-    assert f"(< {MIN_POINTS}): the scene is written without them" in caplog.text
+    assert f"(< {MIN_POINTS}): not used, the scene is written with its own {MIN_POINTS - 1}" in caplog.text
 
 
 def test_few_own_points_are_replaced_by_triangulated_ones():

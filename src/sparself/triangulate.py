@@ -242,8 +242,9 @@ def ensure_points(scene: Scene, photos: Scene | None = None, config: Triangulate
         return scene
     tri = triangulate(scene if photos is None else photos, config)
     if len(tri.points) < MIN_POINTS:
-        log.warning("%d points triangulated from %d photos (< %d): the scene is written without them",
-                    len(tri.points), tri.views, MIN_POINTS)
+        own = 0 if scene.points is None else len(scene.points)
+        log.warning("%d points triangulated from %d photos (< %d): not used, the scene is written %s",
+                    len(tri.points), tri.views, MIN_POINTS, f"with its own {own}" if own else "without points")
         return scene
     log.info("triangulated %d points from %d photos at their known poses (%.1f s)", len(tri.points), tri.views,
              tri.seconds)
