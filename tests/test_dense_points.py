@@ -40,21 +40,24 @@ def _spy(monkeypatch) -> list[list[str]]:
     return calls
 
 
+def _written_name(folder, source_name: str) -> str:
+    """The dense scene's name of the photo ``source_name`` (sparself.json)."""
+    frames = json.loads((folder / "sparself.json").read_text())["frames"]
+    return next(fr["name"] for fr in frames if fr["source_name"] == source_name)
+
+
 def _densify(src, out, tiny_cfg) -> None:
     cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(5,)), plan=PlanConfig(n_mid=2, n_extra=1),
                         out_size=OUT_SIZE, downscaled=False)
     densify(src, out, cfg)
 
 
-def _reprojection_errors(scene) -> list[float]:
-    """Every frame's observations against the projection of their points at its pose (px)."""
-    errs = []
-    for f in scene.frames:
-        obs = scene.meta["observations"][f.name]
-        X = scene.points[obs.point] @ f.pose.R.T + f.pose.tvec
-        uv = X @ scene.cameras[f.camera_id].K.T
-        errs.extend(np.linalg.norm(uv[:, :2] / uv[:, 2:] - obs.xy, axis=1))
-    return errs
+def _reprojection_errors(scene, f) -> np.ndarray:
+    """Frame f's observations against the projection of their points at its pose (px)."""
+    obs = scene.meta["observations"][f.name]
+    X = scene.points[obs.point] @ f.pose.R.T + f.pose.tvec
+    uv = X @ scene.cameras[f.camera_id].K.T
+    return np.linalg.norm(uv[:, :2] / uv[:, 2:] - obs.xy, axis=1)
 
 
 @pytest.mark.parametrize("fmt", ["llff", "nerfstudio"])
@@ -74,9 +77,16 @@ def test_a_capture_without_points_is_written_with_points_from_its_real_photos(tm
     colors = back.meta["point_colors"] / 255.0
     assert np.median(np.abs(colors - texture(back.points[:, 0], back.points[:, 1]))) < 0.05
     assert sum(f.synthetic for f in back.frames) == 3 and len(back) == 9
-    # tracks in every frame (synthesized ones too), each observation at its point's projection
-    assert all(len(back.meta["observations"][f.name].point) for f in back.frames)
-    assert max(_reprojection_errors(back)) < 1e-3
+    # tracks: the training photos keep the keypoints the points were triangulated from (each point in at
+    # least 2 of them, near its projection); the others (synthesized, held out) observe the points' projections
+    obs = back.meta["observations"]
+    used = [f for f in back.frames if not f.synthetic and f.name != _written_name(folder, "p05.png")]
+    assert len(used) == 5 and all(len(obs[f.name].point) for f in back.frames)
+    seen = np.bincount(np.concatenate([obs[f.name].point for f in used]), minlength=n)
+    assert seen.min() >= 2 and seen.sum() < 5 * n  # real tracks, not every point in every photo
+    err = [_reprojection_errors(back, f) for f in used]
+    assert all(np.median(e) < 0.2 for e in err) and max(e.max() for e in err) > 1e-3  # keypoints, not projections
+    assert all(_reprojection_errors(back, f).max() < 1e-3 for f in back.frames if f not in used)
     # nerfstudio's cloud: the same points and colours
     assert json.loads((folder / "transforms.json").read_text())["ply_file_path"] == "sparse_pc.ply"
     ns = read_nerfstudio(folder / "transforms.json")

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .io.colmap import Observations
 from .scene import Camera, Scene
 
 log = logging.getLogger(__name__)
@@ -47,10 +48,13 @@ class TriangulateConfig:
 class Triangulated:
     """points: (P, 3) float64 world points; colors: (P, 3) in [0, 1] (mean of the observed pixels).
     views: frames used; pairs: frame pairs matched; matches: matches passing the ratio and mutual tests;
-    kept: pairwise triangulations passing the geometric checks; seconds: wall time."""
+    kept: pairwise triangulations passing the geometric checks; seconds: wall time; observations: each
+    frame's keypoints in the points' tracks, by frame name (``Scene.meta['observations']``: what a written
+    COLMAP model keeps as its tracks, instead of projecting every point into every view)."""
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    observations: dict[str, Observations] = field(default_factory=dict)
     views: int = 0
     pairs: int = 0
     matches: int = 0
@@ -150,9 +154,10 @@ def _triangulate_pair(va: _View, vb: _View, m: np.ndarray, cfg: TriangulateConfi
     return X[ok], ok
 
 
-def _tracks(views: list[_View], nodes: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _tracks(views: list[_View], nodes: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One point per track. nodes: (E, 2) global keypoint ids of each kept match; pts: (E, 3) its point.
-    -> (P, 3) points (mean over the track's matches), (P, 3) colours (mean over its keypoints' pixels)."""
+    -> (P, 3) points (mean over the track's matches), (P, 3) colours (mean over its keypoints' pixels),
+    (K, 3) int (view, point, keypoint index in the view) of the kept tracks' keypoints."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -176,7 +181,20 @@ def _tracks(views: list[_View], nodes: np.ndarray, pts: np.ndarray) -> tuple[np.
         colors[sel] = views[v].image[np.clip(xy[:, 1].astype(int), 0, h - 1), np.clip(xy[:, 0].astype(int), 0, w - 1)]
     cols = np.stack([np.bincount(lab, colors[:, d], len(tracks)) for d in range(3)], 1)
     cols /= np.bincount(lab, minlength=len(tracks))[:, None]
-    return points[good], np.clip(cols[good], 0.0, 1.0)
+    keep = good[lab]
+    members = np.stack([view_of, np.cumsum(good)[lab] - 1, used - offsets[view_of]], 1)[keep]
+    return points[good], np.clip(cols[good], 0.0, 1.0), members
+
+
+def _observations(scene: Scene, idx: list[int], views: list[_View], members: np.ndarray) -> dict[str, Observations]:
+    """The tracks' keypoints by frame name (xy at the working size, which ``size`` records)."""
+    out = {}
+    for v in np.unique(members[:, 0]):
+        m = members[members[:, 0] == v]
+        cam = views[v].cam
+        out[scene.frames[idx[v]].name] = Observations(m[:, 1].astype(np.int64), views[v].xy[m[:, 2]],
+                                                      (cam.width, cam.height))
+    return out
 
 
 def _pairwise(views: list[_View], pairs: list[tuple[int, int]], cfg: TriangulateConfig,
@@ -220,17 +238,17 @@ def triangulate(scene: Scene, config: TriangulateConfig | None = None) -> Triang
         cv2.setNumThreads(threads)
     out.kept = len(pts)
     if len(pts):
-        out.points, out.colors = _tracks(views, nodes, pts)
+        out.points, out.colors, members = _tracks(views, nodes, pts)
+        out.observations = _observations(scene, idx, views, members)
     out.seconds = time.perf_counter() - t0
     (log.info if len(out.points) else log.warning)("triangulation: %s", out.summary())
     return out
 
 
 def with_points(scene: Scene, tri: Triangulated) -> Scene:
-    """``scene`` with the triangulated points and their colours (uint8 ``meta['point_colors']``, as the
-    COLMAP and PLY writers read them); the scene's own points' colours and SfM observations are dropped."""
-    meta = {k: v for k, v in scene.meta.items() if k not in ("point_colors", "observations")}
-    meta["point_colors"] = np.round(tri.colors * 255).astype(np.uint8)
+    """``scene`` with the triangulated points, their colours (uint8 ``meta['point_colors']``, as the
+    COLMAP and PLY writers read them) and tracks (``meta['observations']``), replacing the scene's own."""
+    meta = dict(scene.meta, point_colors=np.round(tri.colors * 255).astype(np.uint8), observations=tri.observations)
     return replace(scene, points=tri.points, meta=meta)
 
 
