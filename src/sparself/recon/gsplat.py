@@ -115,9 +115,16 @@ def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) ->
         if len(pts) > 200_000:
             pts = pts[rng.choice(len(pts), 200_000, replace=False)]
         return pts, np.full_like(pts, 0.5)
+    pts = frustum_points(scene, cfg.init_points, rng).astype(np.float32)
+    return pts, np.full_like(pts, 0.5)
+
+
+def frustum_points(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(about n, 3) random world points: n / len(scene) per camera (at least 1), uniform over its image
+    and log-uniform in depth between the scene's depth bounds."""
     near, far = scene.depth_bounds()
     pts = []
-    per = max(1, cfg.init_points // max(len(scene), 1))
+    per = max(1, n // max(len(scene), 1))
     for i, f in enumerate(scene.frames):
         cam = scene.camera(i)
         u = rng.uniform(0, cam.width, per)
@@ -125,8 +132,7 @@ def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) ->
         z = np.exp(rng.uniform(np.log(near), np.log(far), per))
         pc = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
         pts.append((pc - f.pose.tvec) @ f.pose.R)  # R^T (x - t)
-    pts = np.concatenate(pts).astype(np.float32)
-    return pts, np.full_like(pts, 0.5)
+    return np.concatenate(pts)
 
 
 def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> GsplatRenderer:
