@@ -162,6 +162,28 @@ def test_tiny_fit_lowers_the_loss_and_raises_training_psnr():
     np.testing.assert_array_equal(after, fit(sc, cfg).render(pose, cam))  # the seed fixes everything
 
 
+def test_initial_gaussians_keep_the_sfm_points_and_fill_the_budget_in_the_frusta():
+    """Fewer SfM points than init_points: every point kept, random frustum points up to the budget; more:
+    a subset of the points only; none: random points only, within the depth bounds in front of a camera."""
+    from sparself.recon.splat import init_gaussians
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2))
+    rng = np.random.default_rng(0)
+    sfm = np.stack([rng.uniform(-0.5, 0.5, 150), rng.uniform(-0.3, 0.3, 150), np.full(150, DEPTH)], 1)
+    sc.points = sfm
+    g = init_gaussians(sc, SplatConfig(init_points=600), np.random.default_rng(1))
+    assert len(g) == 600
+    np.testing.assert_allclose(g.means[:150].numpy(), sfm, rtol=1e-6)
+    z = g.means[150:, 2].numpy()  # cameras at z = 0 looking along +z
+    near, far = sc.depth_bounds()
+    assert np.all((z >= near * 0.999) & (z <= far * 1.001)) and np.std(z) > 0.5
+    g = init_gaussians(sc, SplatConfig(init_points=100), np.random.default_rng(1))
+    assert len(g) == 100 and np.allclose(g.means[:, 2].numpy(), DEPTH)
+    sc.points = None
+    g = init_gaussians(sc, SplatConfig(init_points=600), np.random.default_rng(1))
+    assert len(g) == 600 and np.std(g.means[:, 2].numpy()) > 0.5
+
+
 def test_registry_3dgs_picks_the_cpu_path_without_cuda():
     from sparself.recon.gsplat import available
 
