@@ -77,10 +77,10 @@ from .report import safe_name as _safe
 from .report import write_report
 from .results import (EXTRAPOLATED, INTERPOLATED, NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet, SeededSets,
                       share_of_oracle_gain)
-from .scene import Frame, Scene, load_image, preloaded, resize_image, save_image
+from .scene import MIN_POINTS, Frame, Scene, load_image, preloaded, resize_image, save_image
 from .synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from .train import TrainConfig, train
-from .triangulate import MIN_POINTS, triangulate, with_points
+from .triangulate import triangulate, with_points
 
 log = logging.getLogger(__name__)
 

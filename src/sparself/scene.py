@@ -22,6 +22,10 @@ from .geometry import Pose, fov_deg, intrinsics_matrix
 
 log = logging.getLogger(__name__)
 
+# fewer sparse points than this are not used: 3DGS starts from random points instead, and triangulation that
+# finds fewer leaves a scene without points
+MIN_POINTS = 100
+
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
 # Parameter layouts of the COLMAP camera models we read: (fx, fy, cx, cy) are taken from these.

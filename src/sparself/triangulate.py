@@ -22,11 +22,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .io.colmap import Observations
-from .scene import Camera, Scene
+from .scene import MIN_POINTS, Camera, Scene
 
 log = logging.getLogger(__name__)
-
-MIN_POINTS = 100  # fewer points are not used: a scene starts from no points (the reconstructors' fallback)
 
 
 @dataclass

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import SparselfError
 from ..geometry import Pose
-from ..scene import Camera, Scene
+from ..scene import MIN_POINTS, Camera, Scene
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,7 @@ def _rasterize(gsplat, torch, params, poses, cameras, sh_degree, background, dev
 def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(P, 3) initial means and (P, 3) colours: the sparse points when known, else random in the
     depth-bounded frustum of the cameras (grey)."""
-    if scene.points is not None and len(scene.points) >= 100:
+    if scene.points is not None and len(scene.points) >= MIN_POINTS:
         pts = np.asarray(scene.points, dtype=np.float32)
         if len(pts) > 200_000:
             pts = pts[rng.choice(len(pts), 200_000, replace=False)]

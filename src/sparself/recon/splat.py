@@ -31,7 +31,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..geometry import Pose
-from ..scene import Camera, Scene
+from ..scene import MIN_POINTS, Camera, Scene
 
 log = logging.getLogger(__name__)
 
@@ -319,7 +319,7 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
     from .gsplat import frustum_points
 
     pts = np.zeros((0, 3))
-    if scene.points is not None and len(scene.points) >= 100:
+    if scene.points is not None and len(scene.points) >= MIN_POINTS:
         pts = np.asarray(scene.points, np.float64)
     if len(pts) > cfg.init_points:
         pts = pts[np.sort(rng.choice(len(pts), cfg.init_points, replace=False))]
