@@ -18,20 +18,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sparself.baselines import BASELINES
-from sparself.metrics import lpips_status, psnr, ssim, summarize
+from sparself.capture.scene import Frame
+from sparself.core.metrics import lpips_status, psnr, ssim, summarize
 from sparself.recon.mpi import MpiConfig, fit
-from sparself.scene import Frame
+from sparself.synthesis.baselines import BASELINES
 
 
 def read(path: Path, loader: str):
-    """auto: sparself.io.read_scene (a COLMAP model wins; depth bounds from its points, 1st/99th
+    """auto: sparself.capture.io.read_scene (a COLMAP model wins; depth bounds from its points, 1st/99th
     percentile); llff: poses_bounds.npy, whose bounds are the min near / max far over all views."""
     if loader == "llff":
-        from sparself.io.llff import read_llff
+        from sparself.capture.io.llff import read_llff
 
         return read_llff(path)
-    from sparself.io import read_scene
+    from sparself.capture.io import read_scene
 
     return read_scene(path)
 
@@ -45,8 +45,12 @@ def main(argv=None) -> None:
     ap.add_argument("--planes", type=int, default=32)
     ap.add_argument("--methods", default="nearest,blend,flow,planesweep,mpi")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--loader", choices=("auto", "llff"), default="auto",
-                    help="auto: read_scene (COLMAP points give tight depth bounds); llff: poses_bounds.npy bounds")
+    ap.add_argument(
+        "--loader",
+        choices=("auto", "llff"),
+        default="auto",
+        help="auto: read_scene (COLMAP points give tight depth bounds); llff: poses_bounds.npy bounds",
+    )
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
 
@@ -57,8 +61,10 @@ def main(argv=None) -> None:
     # inputs keep their capture index, so "bracketing" is by index; their images are decoded once
     src = full.subset(inp)
     src.frames = [dataclasses.replace(f, image=full.load(i)) for f, i in zip(src.frames, inp)]
-    targets = [Frame(full.frames[i].name, full.frames[i].pose, full.frames[i].camera_id,
-                     full.frames[i].index, None) for i in tgt]
+    targets = [
+        Frame(full.frames[i].name, full.frames[i].pose, full.frames[i].camera_id, full.frames[i].index, None)
+        for i in tgt
+    ]
     cam = full.cameras[targets[0].camera_id]
     print(f"scene {args.scene.name} (loader {args.loader}): {n} frames, {args.inputs} inputs {inp}")
     print(f"targets ({len(tgt)}): {tgt}; images {cam.width}x{cam.height}; depth bounds {src.depth_bounds()}")
@@ -75,12 +81,14 @@ def main(argv=None) -> None:
         outputs[m] = (out, (time.perf_counter() - t0) / len(targets))
 
     gts = [full.load(i) for i in tgt]  # ground truth, read only now, for scoring
-    print(f"\n| method | PSNR mean ± std (min..max) | SSIM mean ± std | s/view |\n|---|---|---|---|")
+    print("\n| method | PSNR mean ± std (min..max) | SSIM mean ± std | s/view |\n|---|---|---|---|")
     for m, (out, secs) in outputs.items():
         p = summarize([psnr(o, g) for o, g in zip(out, gts)])
         s = summarize([ssim(o, g) for o, g in zip(out, gts)])
-        print(f"| {m} | {p['mean']:.2f} ± {p['std']:.2f} ({p['min']:.2f}..{p['max']:.2f}) | "
-              f"{s['mean']:.4f} ± {s['std']:.4f} | {secs:.2f} |")
+        print(
+            f"| {m} | {p['mean']:.2f} ± {p['std']:.2f} ({p['min']:.2f}..{p['max']:.2f}) | "
+            f"{s['mean']:.4f} ± {s['std']:.4f} | {secs:.2f} |"
+        )
     sys.stdout.flush()
 
 

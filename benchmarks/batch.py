@@ -41,8 +41,8 @@ SINGLE = """
 import sys, time, torch
 from pathlib import Path
 from sparself.pipeline import DensifyConfig, densify
-from sparself.train import TrainConfig
-from sparself.plan import PlanConfig
+from sparself.synthesis.train import TrainConfig
+from sparself.synthesis.plan import PlanConfig
 torch.set_num_threads(1)
 cfg = DensifyConfig(train=TrainConfig(epochs={epochs}, crop=32, weights="none"), plan=PlanConfig(n_mid=4, n_extra=2),
                     out_size=96)
@@ -56,7 +56,7 @@ def make_captures(root: Path, n: int, views: int) -> Path:
     from dataclasses import replace
 
     from planescene import plane_scene
-    from sparself import io as sio
+    from sparself.capture import io as sio
 
     for k in range(n):
         sc = plane_scene(xs=tuple(0.08 * i for i in range(views)), seed=k)
@@ -68,8 +68,7 @@ def make_captures(root: Path, n: int, views: int) -> Path:
 
 
 def timed(cmd: list[str]) -> float:
-    env = {**os.environ, "PYTHONPATH": str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-           "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "PYTHONPATH": str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""), "OMP_NUM_THREADS": "1"}
     t0 = time.perf_counter()
     r = subprocess.run(cmd, env=env, capture_output=True, text=True)
     dt = time.perf_counter() - t0
@@ -89,44 +88,106 @@ def main() -> None:
     a = ap.parse_args()
     workers = [int(w) for w in a.workers.split(",")]
     py = sys.executable
-    flags = ["--epochs", str(a.epochs), "--crop", "32", "--weights", "none", "--n-mid", "4", "--n-extra", "2",
-             "--out-size", "96", "-q"]
+    flags = [
+        "--epochs",
+        str(a.epochs),
+        "--crop",
+        "32",
+        "--weights",
+        "none",
+        "--n-mid",
+        "4",
+        "--n-extra",
+        "2",
+        "--out-size",
+        "96",
+        "-q",
+    ]
     rows: list[tuple[str, float]] = []
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="sparself-bench-batch-") as tmp:
         tmp = Path(tmp)
         manifest = make_captures(tmp / "in", a.captures, a.views)
-        rows.append(("single process (densify in a loop)",
-                     timed([py, "-c", SINGLE.format(epochs=a.epochs), str(manifest), str(tmp / "single")])))
-        rows.append(("batch --local (no Ray)", timed([py, "-m", "sparself.cli", "batch", "densify", str(manifest),
-                                                      "--out", str(tmp / "local"), "--local", *flags])))
+        rows.append(
+            (
+                "single process (densify in a loop)",
+                timed([py, "-c", SINGLE.format(epochs=a.epochs), str(manifest), str(tmp / "single")]),
+            )
+        )
+        rows.append(
+            (
+                "batch --local (no Ray)",
+                timed(
+                    [
+                        py,
+                        "-m",
+                        "sparself.cli",
+                        "batch",
+                        "densify",
+                        str(manifest),
+                        "--out",
+                        str(tmp / "local"),
+                        "--local",
+                        *flags,
+                    ]
+                ),
+            )
+        )
         for w in workers:
-            rows.append((f"batch, Ray, {w} worker{'s' if w > 1 else ''}",
-                         timed([py, "-m", "sparself.cli", "batch", "densify", str(manifest), "--out",
-                                str(tmp / f"ray{w}"), "--workers", str(w), *flags])))
+            rows.append(
+                (
+                    f"batch, Ray, {w} worker{'s' if w > 1 else ''}",
+                    timed(
+                        [
+                            py,
+                            "-m",
+                            "sparself.cli",
+                            "batch",
+                            "densify",
+                            str(manifest),
+                            "--out",
+                            str(tmp / f"ray{w}"),
+                            "--workers",
+                            str(w),
+                            *flags,
+                        ]
+                    ),
+                )
+            )
     print(table(rows, a, load0, os.getloadavg(), workers))
     if a.out:
         a.out.write_text(table(rows, a, load0, os.getloadavg(), workers) + "\n")
     if a.json:
-        a.json.write_text(json.dumps({"rows": rows, "captures": a.captures, "views": a.views, "epochs": a.epochs,
-                                      "cpus": os.cpu_count()}, indent=1))
+        a.json.write_text(
+            json.dumps(
+                {"rows": rows, "captures": a.captures, "views": a.views, "epochs": a.epochs, "cpus": os.cpu_count()},
+                indent=1,
+            )
+        )
 
 
 def table(rows: list[tuple[str, float]], a, load0, load1, workers: list[int]) -> str:
     single = rows[0][1]
     ray1 = dict(rows).get("batch, Ray, 1 worker")
-    out = [f"batch densify, {a.captures} synthetic captures ({a.views} views, 96x64 px, {a.epochs} epochs); "
-           f"{os.cpu_count()} CPUs, {platform.processor() or platform.machine()}; load average "
-           f"{load0[0]:.1f} before, {load1[0]:.1f} after", "",
-           "| path | wall s | s per capture | captures per hour | vs single process |", "|---|---|---|---|---|"]
+    out = [
+        f"batch densify, {a.captures} synthetic captures ({a.views} views, 96x64 px, {a.epochs} epochs); "
+        f"{os.cpu_count()} CPUs, {platform.processor() or platform.machine()}; load average "
+        f"{load0[0]:.1f} before, {load1[0]:.1f} after",
+        "",
+        "| path | wall s | s per capture | captures per hour | vs single process |",
+        "|---|---|---|---|---|",
+    ]
     for name, t in rows:
         out.append(f"| {name} | {t:.1f} | {t / a.captures:.1f} | {3600 * a.captures / t:.0f} | {single / t:.2f}x |")
     if ray1:
         over = ray1 - single
         per = single / a.captures
-        out += ["", f"Ray overhead (1 worker vs single process): {over:+.1f} s = {100 * over / ray1:.1f} % of the Ray "
-                f"run, with {per:.1f} s per capture; for captures of 60 s the same fixed cost would be "
-                f"{100 * over / (over + 60 * a.captures):.1f} % of {a.captures} captures"]
+        out += [
+            "",
+            f"Ray overhead (1 worker vs single process): {over:+.1f} s = {100 * over / ray1:.1f} % of the Ray "
+            f"run, with {per:.1f} s per capture; for captures of 60 s the same fixed cost would be "
+            f"{100 * over / (over + 60 * a.captures):.1f} % of {a.captures} captures",
+        ]
     return "\n".join(out)
 
 

@@ -25,32 +25,53 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 import torch  # noqa: E402
 
-from sparself.geometry import Pose  # noqa: E402
+from sparself.capture.scene import Camera  # noqa: E402
+from sparself.core.geometry import Pose  # noqa: E402
 from sparself.recon.splat import Gaussians, project, rasterize  # noqa: E402
-from sparself.scene import Camera  # noqa: E402
 
 
 def _gaussians(n: int, seed: int, opaque: bool) -> Gaussians:
     g = torch.Generator().manual_seed(seed)
     means = torch.randn(n, 3, generator=g) * torch.tensor([1.2, 0.9, 0.8]) + torch.tensor([0.0, 0.0, 4.0])
-    return Gaussians(means, torch.randn(n, 4, generator=g), torch.randn(n, 3, generator=g) * 0.4 - 3.2,
-                     torch.randn(n, generator=g) + (3.0 if opaque else 0.0), torch.randn(n, 4, 3, generator=g) * 0.5)
+    return Gaussians(
+        means,
+        torch.randn(n, 4, generator=g),
+        torch.randn(n, 3, generator=g) * 0.4 - 3.2,
+        torch.randn(n, generator=g) + (3.0 if opaque else 0.0),
+        torch.randn(n, 4, 3, generator=g) * 0.5,
+    )
 
 
 def _ours(g: Gaussians, pose: Pose, cam: Camera, bg: torch.Tensor):
-    p = project(g, torch.tensor(pose.w2c(), dtype=torch.float32), torch.tensor(cam.K, dtype=torch.float32),
-                cam.width, cam.height, 1)
+    p = project(
+        g,
+        torch.tensor(pose.w2c(), dtype=torch.float32),
+        torch.tensor(cam.K, dtype=torch.float32),
+        cam.width,
+        cam.height,
+        1,
+    )
     return rasterize(p, cam.width, cam.height, bg)
 
 
 def _theirs(gsplat, g: Gaussians, pose: Pose, cam: Camera, bg: torch.Tensor):
     dev = torch.device("cuda")
     img, alpha, _ = gsplat.rasterization(
-        means=g.means.to(dev), quats=g.quats.to(dev), scales=torch.exp(g.log_scales).to(dev),
-        opacities=torch.sigmoid(g.opacity_logits).to(dev), colors=g.sh.to(dev),
+        means=g.means.to(dev),
+        quats=g.quats.to(dev),
+        scales=torch.exp(g.log_scales).to(dev),
+        opacities=torch.sigmoid(g.opacity_logits).to(dev),
+        colors=g.sh.to(dev),
         viewmats=torch.tensor(pose.w2c(), dtype=torch.float32, device=dev)[None],
-        Ks=torch.tensor(cam.K, dtype=torch.float32, device=dev)[None], width=cam.width, height=cam.height,
-        sh_degree=1, backgrounds=bg.to(dev)[None], packed=False, eps2d=0.3, near_plane=0.01)
+        Ks=torch.tensor(cam.K, dtype=torch.float32, device=dev)[None],
+        width=cam.width,
+        height=cam.height,
+        sh_degree=1,
+        backgrounds=bg.to(dev)[None],
+        packed=False,
+        eps2d=0.3,
+        near_plane=0.01,
+    )
     return img[0], alpha[0, ..., 0]
 
 
@@ -81,8 +102,10 @@ def main() -> int:
         print("needs CUDA + gsplat: no CUDA device")
         return 0
     torch.set_num_threads(args.threads)
-    print(f"gsplat {getattr(gsplat, '__version__', '?')}, torch {torch.__version__}, "
-          f"{torch.cuda.get_device_name()}, {args.n} Gaussians, {args.width} x {args.height}, SH degree 1")
+    print(
+        f"gsplat {getattr(gsplat, '__version__', '?')}, torch {torch.__version__}, "
+        f"{torch.cuda.get_device_name()}, {args.n} Gaussians, {args.width} x {args.height}, SH degree 1"
+    )
     cam = Camera.pinhole(args.width, args.height, 0.95 * args.width)
     a = np.radians(8.0)
     turned = Pose.from_center(np.array([np.cos(a / 2), 0.0, np.sin(a / 2), 0.0]), np.array([0.3, -0.1, -0.2]))
@@ -101,8 +124,11 @@ def main() -> int:
             t_gs = _time(lambda: _theirs(gsplat, g, pose, cam, bg), 20, torch.cuda.synchronize)
             t_me = _time(lambda: _ours(g, pose, cam, bg), 3)
         worst = max(worst, float(d.max()))
-        print(f"| {name} | {float(d.max()):.2e} | {float(d.mean()):.2e} | {float(da.max()):.2e} | "
-              f"{1e3 * t_gs:.2f} | {1e3 * t_me:.1f} |", flush=True)
+        print(
+            f"| {name} | {float(d.max()):.2e} | {float(d.mean()):.2e} | {float(da.max()):.2e} | "
+            f"{1e3 * t_gs:.2f} | {1e3 * t_me:.1f} |",
+            flush=True,
+        )
     print(f"\nlargest RGB difference {worst:.3g} ({worst * 255:.2f} / 255)")
     return 0
 

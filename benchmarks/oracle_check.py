@@ -25,9 +25,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from sparself.evaluate import evenly_spaced, holdout_indices  # noqa: E402
-from sparself.io import read_scene  # noqa: E402
-from sparself.metrics import psnr  # noqa: E402
+from sparself.capture.io import read_scene  # noqa: E402
+from sparself.core.metrics import psnr  # noqa: E402
+from sparself.evaluation.split import evenly_spaced, holdout_indices  # noqa: E402
 from sparself.recon import get_reconstructor  # noqa: E402
 
 
@@ -47,20 +47,33 @@ def nested_captures(n_frames: int, views: list[int], inputs: int = 25, every: in
 def densify_check(scene, rname: str, kw: dict, size: int, synth: str) -> dict:
     """``sparself evaluate``'s densification on one capture with the ``synth`` baseline in the network's
     place (cheap, no training): {"N", "N+synth", "oracle", "instrument", "share"} for one reconstructor."""
-    from sparself.baselines import BASELINES
-    from sparself.evaluate import NETWORK, EvalConfig, evaluate_scene
+    from sparself.evaluation.config import EvalConfig
+    from sparself.evaluation.results import NETWORK
+    from sparself.evaluation.protocol import evaluate_scene
+    from sparself.synthesis.baselines import BASELINES
 
     fn = BASELINES[synth]
     cfg = EvalConfig(size=size, seeds=1, lpips=False, densify_baselines=(), examples=0, progress=False)
     fit = get_reconstructor(rname)
-    res = evaluate_scene(scene, cfg, None, network=lambda inputs, seed: fn, baselines={},
-                         reconstructors={rname: lambda sc: fit(sc, **kw)})
+    res = evaluate_scene(
+        scene,
+        cfg,
+        None,
+        network=lambda inputs, seed: fn,
+        baselines={},
+        reconstructors={rname: lambda sc: fit(sc, **kw)},
+    )
     d = res["densification"][rname]
     if d.get("status") != "ok":
         raise RuntimeError(d.get("error"))
     m = lambda k: d[k]["summary"]["psnr"]["mean"] if k in d else float("nan")  # noqa: E731 (no oracle: sparse)
-    return {"N": m("base"), "N+synth": m(NETWORK), "oracle": m("oracle"), "instrument": d.get("instrument"),
-            "share": d.get("oracle_share")}
+    return {
+        "N": m("base"),
+        "N+synth": m(NETWORK),
+        "oracle": m("oracle"),
+        "instrument": d.get("instrument"),
+        "share": d.get("oracle_share"),
+    }
 
 
 def main() -> int:
@@ -69,11 +82,19 @@ def main() -> int:
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--views", default="25,35,50,90")
     ap.add_argument("--recon", default="mpi")
-    ap.add_argument("--mpi-min-baseline", type=float, default=None,
-                    help="MpiConfig.min_baseline (sweep neighbours' distance floor, units of D z_min / f)")
+    ap.add_argument(
+        "--mpi-min-baseline",
+        type=float,
+        default=None,
+        help="MpiConfig.min_baseline (sweep neighbours' distance floor, units of D z_min / f)",
+    )
     ap.add_argument("--max-eval", type=int, default=None, help="score only this many held-out frames")
-    ap.add_argument("--densify", default=None, metavar="BASELINE",
-                    help="instead: evaluate's N / N + BASELINE views / oracle (N + real) for each reconstructor")
+    ap.add_argument(
+        "--densify",
+        default=None,
+        metavar="BASELINE",
+        help="instead: evaluate's N / N + BASELINE views / oracle (N + real) for each reconstructor",
+    )
     ap.add_argument("--mpi-real-sweep", action="store_true", help="MpiConfig.sweep_synthetic = False")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
@@ -86,9 +107,12 @@ def main() -> int:
         for rname in [r.strip() for r in args.recon.split(",") if r.strip()]:
             t0 = time.perf_counter()
             r = densify_check(scene, rname, kw if rname == "mpi" else {}, args.size, args.densify)
-            print(f"{Path(args.scene).name} {rname}{' real-only sweep' if kw else ''}: N {r['N']:.2f}, "
-                  f"N + {args.densify} {r['N+synth']:.2f}, oracle {r['oracle']:.2f} dB; instrument "
-                  f"{r['instrument']}; share {r['share']}; {time.perf_counter() - t0:.0f} s", flush=True)
+            print(
+                f"{Path(args.scene).name} {rname}{' real-only sweep' if kw else ''}: N {r['N']:.2f}, "
+                f"N + {args.densify} {r['N+synth']:.2f}, oracle {r['oracle']:.2f} dB; instrument "
+                f"{r['instrument']}; share {r['share']}; {time.perf_counter() - t0:.0f} s",
+                flush=True,
+            )
         return 0
     order = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)
     full = scene.subset(order).resized(args.size)
@@ -97,8 +121,10 @@ def main() -> int:
     if args.max_eval:
         held = evenly_spaced(held, args.max_eval)
     truth = {i: full.load(i) for i in held}
-    print(f"{Path(args.scene).name} at {args.size} px: {len(full)} frames, {len(held)} held out and scored; "
-          f"load {os.getloadavg()[0]:.1f}")
+    print(
+        f"{Path(args.scene).name} at {args.size} px: {len(full)} frames, {len(held)} held out and scored; "
+        f"load {os.getloadavg()[0]:.1f}"
+    )
     print("\n| reconstructor | views | PSNR (dB) | std | fit + render (s) |\n|---|---|---|---|---|")
     verdicts = []
     for rname in [r.strip() for r in args.recon.split(",") if r.strip()]:
@@ -111,11 +137,18 @@ def main() -> int:
             rend = fit(sub, **kw)
             vals = [psnr(rend.render(full.frames[i].pose, full.camera(i)), truth[i]) for i in held]
             scores.append(float(np.mean(vals)))
-            print(f"| {rname}{f' min_baseline {args.mpi_min_baseline}' if kw else ''} | {n} | {scores[-1]:.2f} | {np.std(vals):.2f} | "
-                  f"{time.perf_counter() - t0:.0f} |", flush=True)
+            print(
+                f"| {rname}{f' min_baseline {args.mpi_min_baseline}' if kw else ''} | {n} | "
+                f"{scores[-1]:.2f} | {np.std(vals):.2f} | "
+                f"{time.perf_counter() - t0:.0f} |",
+                flush=True,
+            )
         ok = all(b > a for a, b in zip(scores[:-1], scores[1:]))
-        verdicts.append(f"{rname}: {'PASS' if ok else 'FAIL'} — PSNR "
-                        + " → ".join(f"{s:.2f}" for s in scores) + f" for {views} real views")
+        verdicts.append(
+            f"{rname}: {'PASS' if ok else 'FAIL'} — PSNR "
+            + " → ".join(f"{s:.2f}" for s in scores)
+            + f" for {views} real views"
+        )
     print()
     print("\n".join(verdicts))
     return 0

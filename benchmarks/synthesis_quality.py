@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sparself import baselines
-from sparself.metrics import psnr, ssim
-from sparself.synthesize import synthesize
-from sparself.train import TrainConfig, train
+from sparself.core.metrics import psnr, ssim
+from sparself.synthesis import baselines
+from sparself.synthesis.synthesize import synthesize
+from sparself.synthesis.train import train
+from sparself.synthesis.train_config import TrainConfig
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -35,7 +36,7 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 def capture(name: str, size: int | None = None):
     """-> (sources Scene (resized), targets list[Frame] without images, ground truth (T, H, W, 3), size).
     size: the longer image side (default: the capture's own, above)."""
-    from sparself.io import read_scene
+    from sparself.capture.io import read_scene
 
     if name == "bird":
         full = read_scene(DATA / "llff_bird")
@@ -73,8 +74,10 @@ def peak_memory_mb(device: str) -> float:
 
 
 def score(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
-    return (float(np.mean([psnr(p, g) for p, g in zip(pred, gt)])),
-            float(np.mean([ssim(p, g) for p, g in zip(pred, gt)])))
+    return (
+        float(np.mean([psnr(p, g) for p, g in zip(pred, gt)])),
+        float(np.mean([ssim(p, g) for p, g in zip(pred, gt)])),
+    )
 
 
 def main() -> None:
@@ -86,15 +89,22 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=None, help="longer image side for every capture (default: each one's)")
     ap.add_argument("--device", default="cpu", help="cpu or cuda, for the network methods")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a TrainConfig field for the network methods (JSON value), repeatable")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a TrainConfig field for the network methods (JSON value), repeatable",
+    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     overrides = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     rows = []
-    print(f"{'capture':8} {'method':16} {'PSNR':>6} {'SSIM':>6} {'train s':>8} {'train cpu':>9} {'synth s':>8} "
-          f"{'peak MB':>9}")
+    print(
+        f"{'capture':8} {'method':16} {'PSNR':>6} {'SSIM':>6} {'train s':>8} {'train cpu':>9} {'synth s':>8} "
+        f"{'peak MB':>9}"
+    )
     for cap in args.captures.split(","):
         sources, targets, gt, size = capture(cap, args.size)
         for m in args.methods.split(","):
@@ -103,8 +113,14 @@ def main() -> None:
                 t0 = time.perf_counter()
                 pred = getattr(baselines, m)(sources, targets)
             else:
-                cfg = TrainConfig(decoder="fc" if m == "fc" else "sweep", epochs=args.epochs, size=size,
-                                  context=m != "sweep-nocontext", fc_side=size // 2, device=args.device)
+                cfg = TrainConfig(
+                    decoder="fc" if m == "fc" else "sweep",
+                    epochs=args.epochs,
+                    size=size,
+                    context=m != "sweep-nocontext",
+                    fc_side=size // 2,
+                    device=args.device,
+                )
                 cfg = dataclasses.replace(cfg, **{k: v for k, v in overrides.items() if m != "fc"})
                 with tempfile.TemporaryDirectory() as tmp:
                     t0, c0 = time.perf_counter(), time.process_time()
@@ -115,10 +131,25 @@ def main() -> None:
             t_syn = time.perf_counter() - t0
             peak = peak_memory_mb(args.device)
             p, s = score(pred, gt)
-            rows.append({"capture": cap, "method": m, "psnr": p, "ssim": s, "train_s": t_train,
-                         "train_cpu_s": c_train, "synth_s": t_syn, "n_targets": len(targets),
-                         "hw": list(gt.shape[1:3]), "epochs": args.epochs, "overrides": overrides, "peak_mb": peak})
-            print(f"{cap:8} {m:16} {p:6.2f} {s:6.3f} {t_train:8.1f} {c_train:9.1f} {t_syn:8.1f} {peak:9.0f}", flush=True)
+            rows.append(
+                {
+                    "capture": cap,
+                    "method": m,
+                    "psnr": p,
+                    "ssim": s,
+                    "train_s": t_train,
+                    "train_cpu_s": c_train,
+                    "synth_s": t_syn,
+                    "n_targets": len(targets),
+                    "hw": list(gt.shape[1:3]),
+                    "epochs": args.epochs,
+                    "overrides": overrides,
+                    "peak_mb": peak,
+                }
+            )
+            print(
+                f"{cap:8} {m:16} {p:6.2f} {s:6.3f} {t_train:8.1f} {c_train:9.1f} {t_syn:8.1f} {peak:9.0f}", flush=True
+            )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

@@ -38,26 +38,46 @@ def _gsplat_fit(steps: int, seed: int, wait_for: str | None = None):
             while wait_for and not Path(wait_for).exists():
                 time.sleep(1)
             return fit(sc, steps=steps, seed=seed, progress=False)
+
         return fit_built
     fit = get_reconstructor("splat")
     return lambda sc: fit(sc, seed=seed, progress=False)
 
 
 def run(args) -> int:
-    from sparself.evaluate import EvalConfig, evaluate_scene, reconstructor, versions
-    from sparself.io import read_scene
+    from sparself.capture.io import read_scene
+    from sparself.evaluation.config import EvalConfig
+    from sparself.evaluation.instruments import reconstructor, versions
+    from sparself.evaluation.protocol import evaluate_scene
 
     recons = tuple(args.recon.split(","))
-    cfg = EvalConfig(size=args.size, seeds=args.seeds, first_seed=args.seed, reconstructors=recons,
-                     densify_baselines=tuple(filter(None, args.densify_baselines.split(","))),
-                     baselines=tuple(args.baselines.split(",")), lpips=False, progress=False,
-                     max_eval=args.max_eval, epochs=args.epochs, nerf_steps=args.nerf_steps, **_set(args.set))
-    fits = {r: _gsplat_fit(args.gs_steps, cfg.recon_seed, args.wait_for) if r == "3dgs" else reconstructor(r, cfg) for r in recons}
+    cfg = EvalConfig(
+        size=args.size,
+        seeds=args.seeds,
+        first_seed=args.seed,
+        reconstructors=recons,
+        densify_baselines=tuple(filter(None, args.densify_baselines.split(","))),
+        baselines=tuple(args.baselines.split(",")),
+        lpips=False,
+        progress=False,
+        max_eval=args.max_eval,
+        epochs=args.epochs,
+        nerf_steps=args.nerf_steps,
+        **_set(args.set),
+    )
+    fits = {
+        r: _gsplat_fit(args.gs_steps, cfg.recon_seed, args.wait_for) if r == "3dgs" else reconstructor(r, cfg)
+        for r in recons
+    }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
-    settings = {**json.loads(json.dumps(dataclasses.asdict(cfg), default=str)), "versions": versions(),
-                "gsplat_steps": args.gs_steps, "lpips_status": "unavailable: disabled by settings"}
+    settings = {
+        **json.loads(json.dumps(dataclasses.asdict(cfg), default=str)),
+        "versions": versions(),
+        "gsplat_steps": args.gs_steps,
+        "lpips_status": "unavailable: disabled by settings",
+    }
 
     def save(res: dict) -> None:
         res = {**res, "wall_s": time.time() - t0}
@@ -83,7 +103,7 @@ def _num(x):
 
 def merge(args) -> int:
     from sparself.batch import merge_seeds
-    from sparself.report import write_report
+    from sparself.evaluation.report import write_report
 
     runs = [json.loads((Path(d) / "results.json").read_text()) for d in args.runs]
     by_scene: dict[str, list] = {}

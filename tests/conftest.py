@@ -6,15 +6,26 @@ import pytest
 import torch
 
 from planescene import SW, noise_scene, small_plane_scene
-from sparself.train import TrainConfig, train
+from sparself.synthesis.train import train
+from sparself.synthesis.train_config import TrainConfig
 
 torch.set_num_threads(1)  # the test machine's cores are shared; 1 thread is faster there
 
 
 def make_tiny_cfg(**kw) -> TrainConfig:
     """A network small enough for the suite: the small plane scene's size, 8 planes, 4 channels."""
-    base = dict(epochs=3, size=SW, crop=16, planes=8, channels=4, batch_size=3, fc_side=12, backbone_size=32,
-                checkpoint_every=1, device="cpu")
+    base = dict(
+        epochs=3,
+        size=SW,
+        crop=16,
+        planes=8,
+        channels=4,
+        batch_size=3,
+        fc_side=12,
+        backbone_size=32,
+        checkpoint_every=1,
+        device="cpu",
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -34,8 +45,7 @@ def small_scene():
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory):
     """A run trained for 2 epochs on the small plane scene (shared by a module's tests; do not modify)."""
-    return train(small_plane_scene(), tmp_path_factory.mktemp("run") / "run", make_tiny_cfg(epochs=2),
-                 progress=False)
+    return train(small_plane_scene(), tmp_path_factory.mktemp("run") / "run", make_tiny_cfg(epochs=2), progress=False)
 
 
 @pytest.fixture

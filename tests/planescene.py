@@ -18,8 +18,8 @@ from typing import Callable
 
 import numpy as np
 
-from sparself.geometry import Pose, inverse_depth_planes
-from sparself.scene import Camera, Frame, Scene
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.geometry import Pose, inverse_depth_planes
 
 W, H, F = 96, 64, 80.0
 NEAR, FAR, NUM_PLANES = 1.0, 10.0, 17
@@ -28,8 +28,14 @@ DEPTH = float(inverse_depth_planes(NEAR, FAR, NUM_PLANES)[8])  # exactly the 9th
 ImageFn = Callable[[Pose, Camera, int], np.ndarray]
 
 
-def camera_line(xs, size: tuple[int, int], focal: float, image: ImageFn, bounds=(NEAR, FAR),
-                name: Callable[[int], str] = "src{}".format) -> Scene:
+def camera_line(
+    xs,
+    size: tuple[int, int],
+    focal: float,
+    image: ImageFn,
+    bounds=(NEAR, FAR),
+    name: Callable[[int], str] = "src{}".format,
+) -> Scene:
     """Cameras at (x, 0, 0) for x in ``xs``, identity rotation (looking along +z), one shared camera of
     ``size`` (W, H) and focal length ``focal``, frame i named ``name(i)`` with index i."""
     cam = Camera.pinhole(size[0], size[1], focal)
@@ -45,7 +51,7 @@ def on_disk(scene: Scene, folder) -> Scene:
     ``image`` dropped): photos on disk, as a reader would give them."""
     from pathlib import Path
 
-    from sparself.scene import save_image
+    from sparself.capture.images import save_image
 
     (Path(folder) / "images").mkdir(parents=True)
     for f in scene.frames:
@@ -56,6 +62,7 @@ def on_disk(scene: Scene, folder) -> Scene:
 
 
 # ---- textured plane ---------------------------------------------------------------------------------
+
 
 def texture(X: np.ndarray, Y: np.ndarray, seed: int = 0) -> np.ndarray:
     """Smooth colour texture on the plane, periods 10-30 px at DEPTH. (..) -> (.., 3) in [0, 1]."""
@@ -72,8 +79,14 @@ def texture(X: np.ndarray, Y: np.ndarray, seed: int = 0) -> np.ndarray:
 
 def waves(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """A cheaper texture with a few long periods (the network tests' small images)."""
-    return np.stack([0.5 + 0.3 * np.sin(9 * X + 2 * Y), 0.5 + 0.3 * np.cos(7 * Y - 3 * X),
-                     0.5 + 0.2 * np.sin(5 * X) * np.cos(6 * Y)], -1)
+    return np.stack(
+        [
+            0.5 + 0.3 * np.sin(9 * X + 2 * Y),
+            0.5 + 0.3 * np.cos(7 * Y - 3 * X),
+            0.5 + 0.2 * np.sin(5 * X) * np.cos(6 * Y),
+        ],
+        -1,
+    )
 
 
 def render_plane(pose: Pose, cam: Camera, depth: float = DEPTH, seed: int = 0, tex=None) -> np.ndarray:
@@ -108,8 +121,14 @@ def small_view(cx: float) -> np.ndarray:
 
 
 def small_plane_scene(n: int = 7, step: float = 0.08) -> Scene:
-    return camera_line([i * step for i in range(n)], (SW, SH), SF, plane_image(SDEPTH, tex=waves),
-                       bounds=(1.0, 4.0), name="f{:02d}.png".format)
+    return camera_line(
+        [i * step for i in range(n)],
+        (SW, SH),
+        SF,
+        plane_image(SDEPTH, tex=waves),
+        bounds=(1.0, 4.0),
+        name="f{:02d}.png".format,
+    )
 
 
 # ---- random pixels ----------------------------------------------------------------------------------
@@ -121,16 +140,23 @@ def noise(h: int, w: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).random((h, w, 3)).astype(np.float32)
 
 
-def noise_scene(n: int = 6, size: tuple[int, int] = (NW, NH), same: tuple[int, ...] = (), ext: str = ".png",
-                seed: int = 0) -> Scene:
+def noise_scene(
+    n: int = 6, size: tuple[int, int] = (NW, NH), same: tuple[int, ...] = (), ext: str = ".png", seed: int = 0
+) -> Scene:
     """n views of random pixels named 00.png..; frames in ``same`` repeat the pose of the frame before
     them (identical consecutive poses)."""
     xs, x = [], 0.0
     for i in range(n):
         x = x if i in same else 0.1 * i
         xs.append(x)
-    return camera_line(xs, size, NF * size[0] / NW, lambda pose, cam, i: noise(size[1], size[0], seed + i),
-                       bounds=(1.0, 5.0), name=lambda i: f"{i:02d}{ext}")
+    return camera_line(
+        xs,
+        size,
+        NF * size[0] / NW,
+        lambda pose, cam, i: noise(size[1], size[0], seed + i),
+        bounds=(1.0, 5.0),
+        name=lambda i: f"{i:02d}{ext}",
+    )
 
 
 def seen_by_all(scene: Scene, pose: Pose, margin: float = 2.0) -> np.ndarray:

@@ -9,7 +9,7 @@ Policies these tests pin down:
 * Mixed image sizes: ``sparself poses`` refuses them (one shared COLMAP camera; the message lists the odd
   files and their sizes). A posed scene carries one camera per size, so the commands that read one
   (``info``, ``plan``, ``train``) accept it, and training resizes every view to ``--size``.
-* Grayscale, RGBA and 16-bit PNGs are converted to RGB by ``sparself.scene.load_image`` with a warning
+* Grayscale, RGBA and 16-bit PNGs are converted to RGB by ``sparself.capture.scene.load_image`` with a warning
   naming the file; COLMAP reads them as they are (SIFT works on gray anyway).
 * EXIF orientation is applied everywhere: COLMAP gets upright copies, every loader applies it.
 * ``info`` and ``plan`` read image headers only, so a truncated JPEG is found by the commands that decode
@@ -34,17 +34,19 @@ import pytest
 from PIL import Image
 
 from planescene import NF, NH, NW, noise, noise_scene
+from sparself.capture.images import load_image, save_image
+from sparself.capture.io import read_scene, write_scene
+from sparself.capture.io.colmap import write_colmap
+from sparself.capture.io.middlebury import write_middlebury
+from sparself.capture.scene import Camera, Frame, Scene
 from sparself.cli import build_parser, main
-from sparself.geometry import Pose, rotmat_to_quat, slerp
-from sparself.io import read_scene, write_scene
-from sparself.io.colmap import write_colmap
-from sparself.io.middlebury import write_middlebury
-from sparself.scene import Camera, Frame, Scene, load_image, save_image
+from sparself.core.geometry import Pose, rotmat_to_quat, slerp
 
 W, H, F = NW, NH, NF
 
 
 # ---- helpers ------------------------------------------------------------------------------------------
+
 
 def _available() -> set[str]:
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
@@ -107,10 +109,12 @@ def write_posed(folder: Path, scene: Scene, fmt: str = "colmap") -> Path:
         write_middlebury(scene, folder / "scene_par.txt")
         return folder
     write_scene(scene, folder)
-    drop = {"colmap": ["poses_bounds.npy", "transforms.json", "sparse_pc.ply"],
-            "colmap_text": ["poses_bounds.npy", "transforms.json", "sparse_pc.ply"],
-            "llff": ["sparse", "transforms.json", "sparse_pc.ply"],
-            "nerfstudio": ["sparse", "poses_bounds.npy", "sparse_pc.ply"]}[fmt]
+    drop = {
+        "colmap": ["poses_bounds.npy", "transforms.json", "sparse_pc.ply"],
+        "colmap_text": ["poses_bounds.npy", "transforms.json", "sparse_pc.ply"],
+        "llff": ["sparse", "transforms.json", "sparse_pc.ply"],
+        "nerfstudio": ["sparse", "poses_bounds.npy", "sparse_pc.ply"],
+    }[fmt]
     for name in drop:
         p = folder / name
         shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
@@ -148,6 +152,7 @@ BROKEN = {  # name of the case -> (how to break a file, what the message must sa
 
 # ---- commands and their arguments ------------------------------------------------------------------
 
+
 def argv_for(cmd: str, inp: Path, out: Path, *extra) -> list:
     """The arguments that run ``cmd`` on input ``inp`` with output ``out`` as quickly as possible."""
     if cmd == "info":
@@ -165,8 +170,8 @@ def argv_for(cmd: str, inp: Path, out: Path, *extra) -> list:
     raise KeyError(cmd)
 
 
-SCENE_COMMANDS = ["info", "plan", "evaluate", "train"]      # read a posed scene
-PHOTO_COMMANDS = ["poses", "densify"]                       # read a folder of photos
+SCENE_COMMANDS = ["info", "plan", "evaluate", "train"]  # read a posed scene
+PHOTO_COMMANDS = ["poses", "densify"]  # read a folder of photos
 WRITING = ["plan", "poses", "evaluate", "train", "densify"]  # write an output
 
 
@@ -197,6 +202,7 @@ def check_failure(capsys, tmp_path: Path, cmd: str, inp: Path, *needles: str, ca
 
 # ---- empty folder, one image, two images ----------------------------------------------------------------
 
+
 @pytest.mark.parametrize("cmd", SCENE_COMMANDS + PHOTO_COMMANDS)
 def test_empty_folder(tmp_path, capsys, cmd):
     (tmp_path / "empty").mkdir()
@@ -208,8 +214,16 @@ def test_empty_folder(tmp_path, capsys, cmd):
 @pytest.mark.parametrize("cmd", PHOTO_COMMANDS)
 def test_one_or_two_photos(tmp_path, capsys, cmd, n):
     write_photos(tmp_path / "photos", n)
-    check_failure(capsys, tmp_path, cmd, tmp_path / "photos", "photos", f"{n} image(s) found", "at least 3",
-                  case=f"{n} photo(s) [{cmd}]")
+    check_failure(
+        capsys,
+        tmp_path,
+        cmd,
+        tmp_path / "photos",
+        "photos",
+        f"{n} image(s) found",
+        "at least 3",
+        case=f"{n} photo(s) [{cmd}]",
+    )
 
 
 @pytest.mark.parametrize("n", [1, 2])
@@ -227,6 +241,7 @@ def test_info_describes_a_single_view(tmp_path, capsys):
 
 
 # ---- broken image files ---------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("case", sorted(BROKEN))
 def test_broken_photo(tmp_path, capsys, case):
@@ -259,12 +274,21 @@ def test_broken_image_in_a_posed_scene(tmp_path, capsys, case):
 
 # ---- mixed sizes, grayscale / RGBA / 16-bit, EXIF ------------------------------------------------------------
 
+
 def test_mixed_photo_sizes_are_refused_by_poses(tmp_path, capsys):
     d = tmp_path / "photos"
     write_photos(d, 4)
     save_image(d / "09.png", texture(H, W // 2, 9))
-    check_failure(capsys, tmp_path, "poses", d, "different sizes", f"{W}x{H}", f"09.png ({W // 2}x{H})",
-                  case="mixed sizes [poses]")
+    check_failure(
+        capsys,
+        tmp_path,
+        "poses",
+        d,
+        "different sizes",
+        f"{W}x{H}",
+        f"09.png ({W // 2}x{H})",
+        case="mixed sizes [poses]",
+    )
 
 
 def test_converted_images_warn_and_load_as_rgb(tmp_path, caplog):
@@ -299,6 +323,7 @@ def test_exif_rotated_view_of_a_posed_scene_loads_upright(tmp_path, capsys):
 
 # ---- poses: one real registration with converted, rotated and unregistrable photos ------------------------
 
+
 def _look_at(c: np.ndarray, target: np.ndarray) -> Pose:
     z = (target - c) / np.linalg.norm(target - c)
     x = np.cross([0.0, -1.0, 0.0], z)
@@ -324,8 +349,13 @@ def render_corner(pose: Pose, w: int = 96, h: int = 72, f: float = 80.0) -> np.n
         s = np.where(np.isfinite(s) & (s > 0), s, np.inf)
         p = c + np.where(np.isfinite(s), s, 0.0)[..., None] * rays
         a, b = [i for i in range(3) if i != axis]
-        col = cv2.remap((tex - tex.min()) / (tex.max() - tex.min()), ((p[..., a] * 40) % 256).astype(np.float32),
-                        ((p[..., b] * 40) % 256).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        col = cv2.remap(
+            (tex - tex.min()) / (tex.max() - tex.min()),
+            ((p[..., a] * 40) % 256).astype(np.float32),
+            ((p[..., b] * 40) % 256).astype(np.float32),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_WRAP,
+        )
         m = s < best
         best[m], img[m] = s[m], col[m]
     return img
@@ -360,8 +390,8 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     hashes = {p.name: p.read_bytes() for p in d.iterdir()}
     # the pose check's repair, on this same run: the check calls 03.png a suspect on the first model and on
     # the first repair (so that repair is not taken); the second repair is checked for real
-    import sparself.sfm as sfm
-    from sparself.posecheck import Suspect
+    import sparself.capture.sfm as sfm
+    from sparself.capture.posecheck import Suspect
 
     real_check, calls = sfm.check_poses, []
 
@@ -392,17 +422,26 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     # and the report say plainly that the repair failed
     assert calls == [[], [], []], rep["repair"]
     assert rep["suspects"] == [{"name": "03.png", "reasons": ["flagged by the test"]}]
-    assert "1 suspect photo(s), poses probably wrong: 03.png (flagged by the test) [tried matches of the " \
-           "suspects restricted to their capture-order neighbours (1 pairs dropped): 8 registered, 1 suspect(s); " \
-           "all matches restricted to capture-order neighbours (a sequential order prior)" in out
-    assert rep["repair"].endswith("could not repair: 03.png still look wrong; check or remove these photos (or add "
-                                  "photos between them and their neighbours) and run again")
+    assert (
+        "1 suspect photo(s), poses probably wrong: 03.png (flagged by the test) [tried matches of the "
+        "suspects restricted to their capture-order neighbours (1 pairs dropped): 8 registered, 1 suspect(s); "
+        "all matches restricted to capture-order neighbours (a sequential order prior)" in out
+    )
+    assert rep["repair"].endswith(
+        "could not repair: 03.png still look wrong; check or remove these photos (or add "
+        "photos between them and their neighbours) and run again"
+    )
     assert len(rep["registered"]) == 8
     (cam_line,) = rep["camera"]
-    assert "is far from the photos' EXIF focal length 240 px (22.6 deg)" in cam_line and f"WARNING: sfm: {cam_line}" in err
+    assert (
+        "is far from the photos' EXIF focal length 240 px (22.6 deg)" in cam_line and f"WARNING: sfm: {cam_line}" in err
+    )
     # conversions said once per kind with a count, and images/ holds upright 8-bit RGB copies
-    for what in ("1 grayscale L image(s) converted to RGB: 02.png", "1 RGBA image(s) converted to RGB (alpha "
-                 "dropped): 03.png", "1 16-bit image(s) converted to RGB: 04.png"):
+    for what in (
+        "1 grayscale L image(s) converted to RGB: 02.png",
+        "1 RGBA image(s) converted to RGB (alpha dropped): 03.png",
+        "1 16-bit image(s) converted to RGB: 04.png",
+    ):
         assert err.count(what) == 1, err
     for i in range(8):
         with Image.open(tmp_path / "scene" / "images" / f"{i:02d}.png") as im:
@@ -412,7 +451,8 @@ def test_poses_registers_converted_and_rotated_photos_and_names_the_unregistrabl
     assert [f.name for f in scene.frames] == [f"{i:02d}.png" for i in range(8)]
     assert scene.image_size(5) == (96, 72) and scene.load(5).shape == (72, 96, 3)
     # the rotated view's pose: between its neighbours, no 90-degree roll
-    from sparself.geometry import rotation_angle_deg
+    from sparself.core.geometry import rotation_angle_deg
+
     R = [f.pose.R for f in scene.frames]
     for i in (4, 6):
         assert rotation_angle_deg(R[5], R[i]) < 10.0
@@ -431,6 +471,7 @@ def test_too_few_registered_is_a_clear_error(tmp_path, capsys):
 
 
 # ---- identical consecutive poses, 500 views ------------------------------------------------------------------
+
 
 def test_slerp_of_identical_rotations_is_finite():
     q = np.array([0.9, 0.1, -0.3, 0.2])
@@ -461,7 +502,7 @@ def test_plan_with_identical_consecutive_poses(tmp_path, capsys):
 def test_500_views_plan_fast_with_linear_memory(tmp_path, capsys):
     """500 shuffled views on an arc: auto order builds the nearest-neighbour path; the CLI plans in
     seconds and the planner's memory stays far below one N x N matrix (2 MB of float64)."""
-    from sparself.plan import PlanConfig, plan_poses
+    from sparself.synthesis.plan import PlanConfig, plan_poses
 
     n = 500
     ang = np.random.default_rng(0).permutation(np.linspace(0, np.radians(300), n))
@@ -469,8 +510,9 @@ def test_500_views_plan_fast_with_linear_memory(tmp_path, capsys):
     frames = []
     for k, a in enumerate(ang):
         c = 3.0 * np.array([np.cos(a), 0.0, np.sin(a)])
-        frames.append(Frame(f"{k:03d}.png", _look_at(c, np.zeros(3)), 1, float(k), None,
-                            np.full((6, 8, 3), 0.5, np.float32)))
+        frames.append(
+            Frame(f"{k:03d}.png", _look_at(c, np.zeros(3)), 1, float(k), None, np.full((6, 8, 3), 0.5, np.float32))
+        )
     scene = Scene({1: cam}, frames, bounds=(1.0, 6.0))
     folder = write_posed(tmp_path / "scene", scene, "llff")
     t0 = time.perf_counter()
@@ -488,6 +530,7 @@ def test_500_views_plan_fast_with_linear_memory(tmp_path, capsys):
 
 
 # ---- pose files: NaN / inf / wrong shape, in every format -----------------------------------------------------
+
 
 def _edit_llff(folder: Path, how: str) -> None:
     pb = np.load(folder / "poses_bounds.npy")
@@ -543,8 +586,12 @@ POSE_FILES = {  # case -> (format, edit, how, words the message must hold)
     "transforms_nan": ("nerfstudio", _edit_transforms, "nan", ("transforms.json", "frame 2", "NaN or inf")),
     "transforms_shape": ("nerfstudio", _edit_transforms, "shape", ("transforms.json", "frame 2", "4x4", "(3, 3)")),
     "colmap_nan": ("colmap_text", _edit_colmap_text, "nan", ("sparse/0/images.txt", "line 5", "NaN or inf")),
-    "colmap_shape": ("colmap_text", _edit_colmap_text, "shape", ("sparse/0/images.txt", "line 5 has 9 fields",
-                                                                 "expected IMAGE_ID QW QX QY QZ TX TY TZ")),
+    "colmap_shape": (
+        "colmap_text",
+        _edit_colmap_text,
+        "shape",
+        ("sparse/0/images.txt", "line 5 has 9 fields", "expected IMAGE_ID QW QX QY QZ TX TY TZ"),
+    ),
     "middlebury_inf": ("middlebury", _edit_middlebury, "inf", ("scene_par.txt", "line 4", "NaN or inf")),
     "middlebury_shape": ("middlebury", _edit_middlebury, "shape", ("scene_par.txt", "line 4", "21 fields")),
 }
@@ -564,11 +611,15 @@ def test_bad_pose_file(tmp_path, capsys, case):
 
 # ---- output folders: existing, unwritable ------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("cmd", WRITING)
 def test_existing_non_empty_output_is_refused(tmp_path, capsys, cmd):
     need(cmd)
-    inp = write_photos(tmp_path / "photos", 3)[0].parent if cmd in PHOTO_COMMANDS else \
-        write_posed(tmp_path / "scene", make_scene(6), "llff")
+    inp = (
+        write_photos(tmp_path / "photos", 3)[0].parent
+        if cmd in PHOTO_COMMANDS
+        else write_posed(tmp_path / "scene", make_scene(6), "llff")
+    )
     out = tmp_path / ("plan.json" if cmd == "plan" else "out")
     if cmd == "plan":
         out.write_text("keep me")
@@ -596,13 +647,18 @@ def test_overwrite_replaces_an_existing_output(tmp_path, capsys):
 def test_unwritable_output_is_refused_before_any_work(tmp_path, capsys, cmd):
     """An output under a regular file, and one on a read-only file system (/proc: refused even to root)."""
     need(cmd)
-    inp = write_photos(tmp_path / "photos", 3)[0].parent if cmd in PHOTO_COMMANDS else \
-        write_posed(tmp_path / "scene", make_scene(6), "llff")
+    inp = (
+        write_photos(tmp_path / "photos", 3)[0].parent
+        if cmd in PHOTO_COMMANDS
+        else write_posed(tmp_path / "scene", make_scene(6), "llff")
+    )
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     before = listing(tmp_path)
-    for out in (blocker / ("plan.json" if cmd == "plan" else "out"),
-                Path("/proc") / ("sparself_plan.json" if cmd == "plan" else "sparself_out")):
+    for out in (
+        blocker / ("plan.json" if cmd == "plan" else "out"),
+        Path("/proc") / ("sparself_plan.json" if cmd == "plan" else "sparself_out"),
+    ):
         t0 = time.perf_counter()
         code, _, err = run(capsys, *argv_for(cmd, inp, out, "-q"))
         one_error(code, err, cmd, str(out), case=f"unwritable output {out.parent} [{cmd}]")
@@ -612,13 +668,14 @@ def test_unwritable_output_is_refused_before_any_work(tmp_path, capsys, cmd):
 
 def test_debug_shows_the_traceback(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
-    from sparself.errors import InputError
+    from sparself.core.errors import InputError
 
     with pytest.raises(InputError, match="no scene found"):
         main(["info", str(tmp_path / "empty"), "--debug"])
 
 
 # ---- train / synthesize: one tiny run shared by the cases ---------------------------------------------------
+
 
 def _awkward_scene() -> Scene:
     """6 views, 2 and 3 at the same pose; 01 gray, 02 RGBA, 03 16-bit, 04 EXIF-rotated, 05 at twice
@@ -647,18 +704,36 @@ def _make_awkward(folder: Path) -> Path:
 def trained(tmp_path_factory):
     """train -> plan -> synthesize through the CLI on the awkward scene (read-only, hashed)."""
     need("train", "synthesize")
-    import io
     import contextlib
+    import io
 
     root = tmp_path_factory.mktemp("trained")
     scene = _make_awkward(root / "scene")
     hashes = {p: p.read_bytes() for p in scene.rglob("*") if p.is_file()}
     logs = {}
     for name, argv in (
-            ("train", ["train", scene, "--out", root / "run", "--epochs", "1", "--size", "32", "--crop", "16",
-                       "--device", "cpu", "--batch-size", "6"]),
-            ("plan", ["plan", scene, "--out", root / "plan.json", "--n-mid", "3", "--n-extra", "1"]),
-            ("synthesize", ["synthesize", root / "run", "--plan", root / "plan.json", "--out", root / "dense"])):
+        (
+            "train",
+            [
+                "train",
+                scene,
+                "--out",
+                root / "run",
+                "--epochs",
+                "1",
+                "--size",
+                "32",
+                "--crop",
+                "16",
+                "--device",
+                "cpu",
+                "--batch-size",
+                "6",
+            ],
+        ),
+        ("plan", ["plan", scene, "--out", root / "plan.json", "--n-mid", "3", "--n-extra", "1"]),
+        ("synthesize", ["synthesize", root / "run", "--plan", root / "plan.json", "--out", root / "dense"]),
+    ):
         err = io.StringIO()
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)  # no division by zero on the identical poses
@@ -666,8 +741,14 @@ def trained(tmp_path_factory):
         logs[name] = err.getvalue()
         assert code == 0, logs[name]
     assert {p: p.read_bytes() for p in scene.rglob("*") if p.is_file()} == hashes  # inputs untouched
-    return {"root": root, "scene": scene, "run": root / "run", "plan": root / "plan.json",
-            "dense": root / "dense", "logs": logs}
+    return {
+        "root": root,
+        "scene": scene,
+        "run": root / "run",
+        "plan": root / "plan.json",
+        "dense": root / "dense",
+        "logs": logs,
+    }
 
 
 def test_training_converts_images_with_warnings(trained):
@@ -681,8 +762,10 @@ def test_training_converts_images_with_warnings(trained):
 def test_synthesis_on_identical_poses_and_mixed_sizes(trained):
     """The dense scene: 6 + 4 views (one midpoint between the identical poses 2 and 3), all finite; the
     mixed sizes were resized with a warning."""
-    assert "different image sizes" in trained["logs"]["synthesize"] and f"resizing them to {W}x{H}" in \
-        trained["logs"]["synthesize"]
+    assert (
+        "different image sizes" in trained["logs"]["synthesize"]
+        and f"resizing them to {W}x{H}" in trained["logs"]["synthesize"]
+    )
     dense = read_scene(trained["dense"])
     assert len(dense) == 10 and sum(f.synthetic for f in dense.frames) == 4
     assert sum(f.name.endswith("_novel_0002.50.png") for f in dense.frames) == 1
@@ -698,11 +781,13 @@ def synth_failure(capsys, trained, tmp_path, *needles, run_dir=None, plan=None, 
         out.parent.mkdir(parents=True, exist_ok=True)
     watch = out.parent if out.parent.is_dir() else tmp_path
     # /proc gains and loses one numeric entry per process while the test runs; sparself's names are never numeric
-    entries = (lambda: [n for n in listing(watch) if not n.isdigit()]) if watch == Path("/proc") else \
-        (lambda: listing(watch))
+    entries = (
+        (lambda: [n for n in listing(watch) if not n.isdigit()]) if watch == Path("/proc") else (lambda: listing(watch))
+    )
     before = entries()
-    code, _, err = run(capsys, "synthesize", run_dir or trained["run"], "--plan", plan or trained["plan"],
-                       "--out", out, "-q", *extra)
+    code, _, err = run(
+        capsys, "synthesize", run_dir or trained["run"], "--plan", plan or trained["plan"], "--out", out, "-q", *extra
+    )
     line = one_error(code, err, "synthesize", *needles, case=case)
     assert entries() == before
     return line
@@ -716,26 +801,80 @@ def test_checkpoint_problems(trained, tmp_path, capsys):
     ck = torch.load(other / "checkpoint.pt", weights_only=False)
     ck["config"]["channels"] += 3  # a checkpoint from another config: every decoder layer changes shape
     torch.save(ck, other / "checkpoint.pt")
-    synth_failure(capsys, trained, tmp_path, "checkpoint.pt", "does not fit this model", run_dir=other,
-                  case="checkpoint from another config [synthesize]")
+    synth_failure(
+        capsys,
+        trained,
+        tmp_path,
+        "checkpoint.pt",
+        "does not fit this model",
+        run_dir=other,
+        case="checkpoint from another config [synthesize]",
+    )
     (other / "checkpoint.pt").write_bytes(b"")
-    synth_failure(capsys, trained, tmp_path, "checkpoint.pt", "cannot read checkpoint", run_dir=other,
-                  case="zero-byte checkpoint [synthesize]")
+    synth_failure(
+        capsys,
+        trained,
+        tmp_path,
+        "checkpoint.pt",
+        "cannot read checkpoint",
+        run_dir=other,
+        case="zero-byte checkpoint [synthesize]",
+    )
     (other / "checkpoint.pt").write_bytes((trained["run"] / "checkpoint.pt").read_bytes()[:2000])
-    synth_failure(capsys, trained, tmp_path, "checkpoint.pt", "cannot read checkpoint", run_dir=other,
-                  case="truncated checkpoint [synthesize]")
-    synth_failure(capsys, trained, tmp_path, "scene", "no checkpoint", run_dir=trained["scene"],
-                  case="not a run folder [synthesize]")
+    synth_failure(
+        capsys,
+        trained,
+        tmp_path,
+        "checkpoint.pt",
+        "cannot read checkpoint",
+        run_dir=other,
+        case="truncated checkpoint [synthesize]",
+    )
+    synth_failure(
+        capsys,
+        trained,
+        tmp_path,
+        "scene",
+        "no checkpoint",
+        run_dir=trained["scene"],
+        case="not a run folder [synthesize]",
+    )
 
 
 def test_resume_with_another_config_is_refused(trained, tmp_path, capsys):
     run_dir = tmp_path / "run"
     shutil.copytree(trained["run"], run_dir)
     before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
-    code, _, err = run(capsys, "train", trained["scene"], "--out", run_dir, "--epochs", "2", "--size", "32",
-                       "--crop", "16", "--device", "cpu", "--batch-size", "6", "--decoder", "fc", "--resume", "-q")
-    one_error(code, err, "train", "checkpoint.pt", "different config", "decoder='sweep' (asked: 'fc')",
-              case="--resume with another config [train]")
+    code, _, err = run(
+        capsys,
+        "train",
+        trained["scene"],
+        "--out",
+        run_dir,
+        "--epochs",
+        "2",
+        "--size",
+        "32",
+        "--crop",
+        "16",
+        "--device",
+        "cpu",
+        "--batch-size",
+        "6",
+        "--decoder",
+        "fc",
+        "--resume",
+        "-q",
+    )
+    one_error(
+        code,
+        err,
+        "train",
+        "checkpoint.pt",
+        "different config",
+        "decoder='sweep' (asked: 'fc')",
+        case="--resume with another config [train]",
+    )
     assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before  # the run is left as it was
     code, _, err = run(capsys, "train", trained["scene"], "--out", tmp_path / "none", "--resume", "-q")
     one_error(code, err, "train", "checkpoint.pt", "no checkpoint", case="--resume without a run [train]")
@@ -748,11 +887,14 @@ def _edit_plan(src: Path, dst: Path, edit) -> Path:
     return dst
 
 
-@pytest.mark.parametrize("case, edit, needles", [
-    ("nan", lambda f: f["tvec"].__setitem__(0, float("nan")), ("invalid plan", "NaN")),
-    ("shape", lambda f: f["qvec"].pop(), ("frame 1", "qvec must have 4 numbers, got 3")),
-    ("camera", lambda f: f.__setitem__("camera_id", 7), ("frame 1", "camera 7 is not a camera of the scene")),
-])
+@pytest.mark.parametrize(
+    "case, edit, needles",
+    [
+        ("nan", lambda f: f["tvec"].__setitem__(0, float("nan")), ("invalid plan", "NaN")),
+        ("shape", lambda f: f["qvec"].pop(), ("frame 1", "qvec must have 4 numbers, got 3")),
+        ("camera", lambda f: f.__setitem__("camera_id", 7), ("frame 1", "camera 7 is not a camera of the scene")),
+    ],
+)
 def test_bad_plan_file(trained, tmp_path, capsys, case, edit, needles):
     plan = _edit_plan(trained["plan"], tmp_path / "bad_plan.json", edit)
     synth_failure(capsys, trained, tmp_path, "bad_plan.json", *needles, plan=plan, case=f"plan {case} [synthesize]")
@@ -763,10 +905,27 @@ def test_mixed_aspect_ratios_are_refused(trained, tmp_path, capsys):
     s.cameras[3] = Camera.pinhole(H, H, F)
     s.frames[2].camera_id, s.frames[2].image = 3, texture(H, H, 2)
     scene = write_posed(tmp_path / "square", s, "colmap")
-    check_failure(capsys, tmp_path / "t", "train", scene, "square", "different aspect ratios", f"{H}x{H}",
-                  case="mixed aspect [train]")
-    synth_failure(capsys, trained, tmp_path, "square", "different aspect ratios", f"{H}x{H}", f"{W}x{H}",
-                  extra=("--scene", scene), case="mixed aspect [synthesize]")
+    check_failure(
+        capsys,
+        tmp_path / "t",
+        "train",
+        scene,
+        "square",
+        "different aspect ratios",
+        f"{H}x{H}",
+        case="mixed aspect [train]",
+    )
+    synth_failure(
+        capsys,
+        trained,
+        tmp_path,
+        "square",
+        "different aspect ratios",
+        f"{H}x{H}",
+        f"{W}x{H}",
+        extra=("--scene", scene),
+        case="mixed aspect [synthesize]",
+    )
 
 
 def test_synthesize_output_folder(trained, tmp_path, capsys):
@@ -777,16 +936,27 @@ def test_synthesize_output_folder(trained, tmp_path, capsys):
     assert (out / "old.txt").read_text() == "keep me"
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
-    synth_failure(capsys, trained, tmp_path, "a_file", "not a folder", out=blocker / "out",
-                  case="unwritable output [synthesize]")
-    synth_failure(capsys, trained, tmp_path, "/proc", out=Path("/proc/sparself_out"),
-                  case="read-only output [synthesize]")
+    synth_failure(
+        capsys, trained, tmp_path, "a_file", "not a folder", out=blocker / "out", case="unwritable output [synthesize]"
+    )
+    synth_failure(
+        capsys, trained, tmp_path, "/proc", out=Path("/proc/sparself_out"), case="read-only output [synthesize]"
+    )
     # --overwrite replaces only a folder sparself wrote (issue 14)
-    synth_failure(capsys, trained, tmp_path, str(out), "not a folder sparself wrote", out=out, extra=("--overwrite",),
-                  case="--overwrite on a folder sparself did not write [synthesize]")
+    synth_failure(
+        capsys,
+        trained,
+        tmp_path,
+        str(out),
+        "not a folder sparself wrote",
+        out=out,
+        extra=("--overwrite",),
+        case="--overwrite on a folder sparself did not write [synthesize]",
+    )
     (out / ".sparself-output").write_text("")
-    code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite",
-                       "-q")
+    code, _, err = run(
+        capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite", "-q"
+    )
     assert code == 0, err
     assert not (out / "old.txt").exists() and (out / "transforms.json").is_file()
 
@@ -797,12 +967,24 @@ def test_memory_estimate_before_training(trained, caplog):
     a machine with 8 GiB free gets a warning."""
     import torch
 
-    from sparself.train import TrainConfig, log_memory_estimate, memory_estimate
+    from sparself.synthesis.train import log_memory_estimate, memory_estimate
+    from sparself.synthesis.train_config import TrainConfig
 
     assert "INFO: training memory estimate: ~" in trained["logs"]["train"]
     cam = Camera.pinhole(4032, 3024, 3000.0)  # phone photos
-    big = Scene({1: cam}, [Frame(f"{i:03d}.jpg", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([i, 0.0, 0])),
-                                 1, float(i), Path("/nonexistent") / f"{i:03d}.jpg") for i in range(500)])
+    big = Scene(
+        {1: cam},
+        [
+            Frame(
+                f"{i:03d}.jpg",
+                Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([i, 0.0, 0])),
+                1,
+                float(i),
+                Path("/nonexistent") / f"{i:03d}.jpg",
+            )
+            for i in range(500)
+        ],
+    )
     est = memory_estimate(big.resized(1024), TrainConfig(size=1024), torch.device("cpu"))
     assert est["images"] == 500 * 3 * 1024 * 768 * 4 and est["total"] > est["images"]
     with caplog.at_level("INFO", logger="sparself"):

@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from planescene import NUM_PLANES, plane_scene, render_plane, seen_by_all
-from sparself.baselines import BASELINES, blend, bracketing, nearest, planesweep, flow
-from sparself.geometry import Pose
-from sparself.metrics import psnr
-from sparself.scene import Camera, Frame
+from sparself.capture.scene import Camera, Frame
+from sparself.core.geometry import Pose
+from sparself.core.metrics import psnr
+from sparself.synthesis.baselines import BASELINES, blend, bracketing, flow, nearest, planesweep
 
 torch.set_num_threads(2)
 

@@ -17,20 +17,21 @@ import numpy as np
 import pytest
 
 from planescene import plane_scene
-from sparself import batch
-from sparself.errors import InputError, SparselfError
-from sparself.evaluate import EvalConfig
-from sparself.plan import PlanConfig
+from sparself import batch, batch_ray
+from sparself.core.errors import InputError, SparselfError
+from sparself.evaluation.config import EvalConfig
 from sparself.pipeline import DensifyConfig
-from sparself.train import TrainConfig
+from sparself.synthesis.plan import PlanConfig
+from sparself.synthesis.train_config import TrainConfig
 
-TINY = DensifyConfig(train=TrainConfig(epochs=2, crop=32, planes=8, weights="none"),
-                     plan=PlanConfig(n_mid=2, n_extra=1), out_size=48)
+TINY = DensifyConfig(
+    train=TrainConfig(epochs=2, crop=32, planes=8, weights="none"), plan=PlanConfig(n_mid=2, n_extra=1), out_size=48
+)
 TINY_ARGS = ["--epochs", "2", "--crop", "32", "--n-mid", "2", "--n-extra", "1", "--out-size", "48", "--weights", "none"]
 
 
 def _write_capture(folder: Path, seed: int, n: int = 6) -> None:
-    from sparself import io as sio
+    from sparself.capture import io as sio
 
     sc = plane_scene(xs=tuple(0.1 * i for i in range(n)), seed=seed)
     sc = replace(sc, frames=[replace(f, name=f"img{i}.png") for i, f in enumerate(sc.frames)])
@@ -69,8 +70,11 @@ def _leftovers(folder: Path) -> list[Path]:
 
 def _files(folder: Path) -> dict[str, bytes]:
     """The densified scenes' bytes (the run folders hold wall-clock timings, so they are left out)."""
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file() and "/run/" not in str(p)}
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and "/run/" not in str(p)
+    }
 
 
 def test_batch_densify_on_ray_isolates_failures_resumes_and_equals_local(captures, ray_local, tmp_path):
@@ -98,30 +102,57 @@ def test_batch_densify_on_ray_isolates_failures_resumes_and_equals_local(capture
     # a re-run skips the two done (their files untouched) and tries the broken one again
     before = {p: p.stat().st_mtime_ns for p in (out / "captures").rglob("*") if p.is_file()}
     again = batch.run_batch("densify", captures / "three.txt", out, TINY, batch.BatchConfig(progress=False))
-    assert [(u.capture, u.status, u.skipped) for u in again.units] == \
-        [("cap0", "ok", True), ("broken", "failed", False), ("cap1", "ok", True)]
+    assert [(u.capture, u.status, u.skipped) for u in again.units] == [
+        ("cap0", "ok", True),
+        ("broken", "failed", False),
+        ("cap1", "ok", True),
+    ]
     assert {p: p.stat().st_mtime_ns for p in before} == before
     assert "(earlier run)" in (out / "report.md").read_text()
 
     # the same manifest in one process without Ray: byte-identical scenes
     local = tmp_path / "local"
-    res_l = batch.run_batch("densify", captures / "three.txt", local, TINY, batch.BatchConfig(local=True, progress=False))
+    res_l = batch.run_batch(
+        "densify", captures / "three.txt", local, TINY, batch.BatchConfig(local=True, progress=False)
+    )
     assert [(u.capture, u.status, u.error) for u in res_l.units] == [(u.capture, u.status, u.error) for u in res.units]
     assert _files(local / "captures") == _files(out / "captures") and len(_files(out / "captures")) > 20
 
 
 def test_batch_evaluate_merges_seeds_and_equals_local(captures, ray_local, tmp_path):
     man = captures / "eval.json"
-    man.write_text(json.dumps({
-        "defaults": {"size": 32, "inputs": 5, "n_mid": 2, "n_extra": 1, "epochs": 1, "reconstructors": ["mpi"],
-                     "baselines": ["blend"], "densify_baselines": ["blend"], "lpips": False, "max_eval": 2, "seeds": 1},
-        "captures": [{"path": "cap0", "seeds": 2}, {"path": "broken", "name": "bad"}]}))
+    man.write_text(
+        json.dumps(
+            {
+                "defaults": {
+                    "size": 32,
+                    "inputs": 5,
+                    "n_mid": 2,
+                    "n_extra": 1,
+                    "epochs": 1,
+                    "reconstructors": ["mpi"],
+                    "baselines": ["blend"],
+                    "densify_baselines": ["blend"],
+                    "lpips": False,
+                    "max_eval": 2,
+                    "seeds": 1,
+                },
+                "captures": [{"path": "cap0", "seeds": 2}, {"path": "broken", "name": "bad"}],
+            }
+        )
+    )
     base = EvalConfig(progress=False)
     runs = {}
-    for mode, cfg in (("ray", batch.BatchConfig(progress=False)), ("local", batch.BatchConfig(local=True, progress=False))):
+    for mode, cfg in (
+        ("ray", batch.BatchConfig(progress=False)),
+        ("local", batch.BatchConfig(local=True, progress=False)),
+    ):
         res = batch.run_batch("evaluate", man, tmp_path / mode, base, cfg)
-        assert [(u.capture, u.seed, u.status) for u in res.units] == \
-            [("cap0", 0, "ok"), ("cap0", 1, "ok"), ("bad", 0, "failed")]
+        assert [(u.capture, u.seed, u.status) for u in res.units] == [
+            ("cap0", 0, "ok"),
+            ("cap0", 1, "ok"),
+            ("bad", 0, "failed"),
+        ]
         runs[mode] = json.loads((tmp_path / mode / "results.json").read_text())
         assert (tmp_path / mode / "captures" / "cap0" / "seed1" / "report.md").is_file()
         assert not _leftovers(tmp_path / mode)
@@ -137,8 +168,10 @@ def test_batch_evaluate_merges_seeds_and_equals_local(captures, ray_local, tmp_p
     assert [s["seed"] for s in ray_scene["densification"]["mpi"]["sparself_weighted"]["per_seed"]] == [0, 1]
     assert "blend" in ray_scene["view_synthesis"]  # the seed-0 unit carried the baselines
     assert ray_scene["view_synthesis"] == local_scene["view_synthesis"]  # same numbers with and without Ray
-    assert ray_scene["densification"]["mpi"]["sparself"]["per_seed"] == \
-        local_scene["densification"]["mpi"]["sparself"]["per_seed"]
+    assert (
+        ray_scene["densification"]["mpi"]["sparself"]["per_seed"]
+        == local_scene["densification"]["mpi"]["sparself"]["per_seed"]
+    )
     assert runs["ray"]["scenes"][1]["status"] == "failed" and "seed 0:" in runs["ray"]["scenes"][1]["error"]
     md = (tmp_path / "ray" / "report.md").read_text()
     assert "mean ± std over 1 capture(s)" in md and "| bad | 0 | failed |" in md
@@ -170,23 +203,34 @@ def test_sigterm_cancels_the_batch_and_a_rerun_completes_it(captures, ray_local,
     assert not (out / "captures" / "cap1").exists()  # one unit at a time: the second never started
     assert not (out / "results.json").exists()
     # the re-run (here on the test's Ray) finishes the batch; nothing is left behind
-    res = batch.run_batch("densify", captures / "two.txt", out, replace(TINY, train=replace(TINY.train, epochs=6)),
-                          batch.BatchConfig(progress=False))
+    res = batch.run_batch(
+        "densify",
+        captures / "two.txt",
+        out,
+        replace(TINY, train=replace(TINY.train, epochs=6)),
+        batch.BatchConfig(progress=False),
+    )
     assert [u.status for u in res.units] == ["ok", "ok"]
     assert not _leftovers(out) and (out / "report.md").is_file()
 
 
 # ---- without Ray ------------------------------------------------------------------------------------
 
+
 def test_manifest_formats_and_errors(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     js = tmp_path / "m.json"
-    js.write_text(json.dumps({"defaults": {"epochs": 3}, "captures": ["a", {"path": "b", "name": "bee", "n_mid": 4,
-                                                                             "holdout": [1, 2]}]}))
+    js.write_text(
+        json.dumps(
+            {"defaults": {"epochs": 3}, "captures": ["a", {"path": "b", "name": "bee", "n_mid": 4, "holdout": [1, 2]}]}
+        )
+    )
     caps = batch.read_manifest(js, "densify")
     assert [(c.name, c.path, c.options) for c in caps] == [
-        ("a", tmp_path / "a", {"epochs": 3}), ("bee", tmp_path / "b", {"epochs": 3, "n_mid": 4, "holdout": (1, 2)})]
+        ("a", tmp_path / "a", {"epochs": 3}),
+        ("bee", tmp_path / "b", {"epochs": 3, "n_mid": 4, "holdout": (1, 2)}),
+    ]
     units = batch.make_units("densify", caps, TINY, tmp_path / "out")
     assert units[1].config.plan.n_mid == 4 and units[1].config.train.epochs == 3 and units[0].config.plan.n_mid == 2
     assert units[1].out == tmp_path / "out" / "captures" / "bee"
@@ -203,10 +247,14 @@ def test_manifest_formats_and_errors(tmp_path):
     with pytest.raises(InputError, match="differ only in case"):
         batch.read_manifest(js, "densify")
     (tmp_path / "one.txt").write_text("a\n")
-    ev_units = batch.make_units("evaluate", batch.read_manifest(tmp_path / "one.txt", "evaluate"),
-                                EvalConfig(seeds=3), tmp_path / "out")
-    assert [(u.seed, u.config.first_seed, u.config.seeds, u.config.oracle) for u in ev_units] == \
-        [(0, 0, 1, True), (1, 1, 1, False), (2, 2, 1, False)]
+    ev_units = batch.make_units(
+        "evaluate", batch.read_manifest(tmp_path / "one.txt", "evaluate"), EvalConfig(seeds=3), tmp_path / "out"
+    )
+    assert [(u.seed, u.config.first_seed, u.config.seeds, u.config.oracle) for u in ev_units] == [
+        (0, 0, 1, True),
+        (1, 1, 1, False),
+        (2, 2, 1, False),
+    ]
     pytest.importorskip("yaml")
     ym = tmp_path / "m.yaml"
     ym.write_text("captures:\n  - path: a\n    seeds: 2\n")
@@ -219,7 +267,7 @@ def test_missing_ray_says_how_to_install(tmp_path, monkeypatch, capsys):
     (tmp_path / "m.txt").write_text("cap\n")
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
     with pytest.raises(SparselfError, match=r"pip install 'sparself\[ray\]'"):
-        with batch.ray_session(batch.BatchConfig(), tmp_path):
+        with batch_ray.ray_session(batch.BatchConfig(), tmp_path):
             pass
     assert main(["batch", "densify", str(tmp_path / "m.txt"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

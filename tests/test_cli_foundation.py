@@ -172,8 +172,8 @@ def test_unusable_output_paths(tmp_path, capsys):
 
 
 def test_plot_draws_held_out_views(tmp_path):
-    from sparself.io import read_scene
-    from sparself.plot import plot_cameras
+    from sparself.capture.io import read_scene
+    from sparself.capture.plot import plot_cameras
 
     scene = read_scene(SAMPLE)
     inputs, held = scene.subset(list(range(0, 49, 2))), [scene.frames[i] for i in range(1, 49, 2)]

@@ -12,26 +12,46 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sparself.geometry import Pose, interpolate_pose, rotmat_to_quat
-from sparself.io import DenseInfo, read_colmap, read_llff, read_nerfstudio, read_scene, write_colmap, write_scene
 from planescene import camera_line, noise, on_disk
-from sparself.io.dense import EVERY, downscaled_size, n_test_positions, safe_order
-from sparself.scene import Frame, Scene, image_size_of
+from sparself.capture.images import image_size_of
+from sparself.capture.io import (
+    DenseInfo,
+    read_colmap,
+    read_llff,
+    read_nerfstudio,
+    read_scene,
+    write_colmap,
+    write_scene,
+)
+from sparself.capture.io.dense import EVERY, downscaled_size, n_test_positions, safe_order
+from sparself.capture.scene import Frame, Scene
+from sparself.core.geometry import Pose, interpolate_pose, rotmat_to_quat
 
 W, H, FOCAL = 27, 18, 24.0  # odd sizes: w // f and round(w / f) differ
 
 
 def _photos(folder: Path, n: int, ext: str = ".png") -> Scene:
     """n photos of random pixels on disk (000.png, ...), cameras on the x axis looking at 50 sparse points."""
-    scene = on_disk(camera_line([0.1 * i for i in range(n)], (W, H), FOCAL, lambda pose, cam, i: noise(H, W, i),
-                                bounds=(1.0, 5.0), name=lambda i: f"{i:03d}{ext}"), folder)
+    scene = on_disk(
+        camera_line(
+            [0.1 * i for i in range(n)],
+            (W, H),
+            FOCAL,
+            lambda pose, cam, i: noise(H, W, i),
+            bounds=(1.0, 5.0),
+            name=lambda i: f"{i:03d}{ext}",
+        ),
+        folder,
+    )
     rng = np.random.default_rng(0)
-    scene.points = np.column_stack([rng.uniform(-0.3, 0.1 * n + 0.3, 50), rng.uniform(-0.5, 0.5, 50),
-                                    rng.uniform(2.0, 4.0, 50)])
+    scene.points = np.column_stack(
+        [rng.uniform(-0.3, 0.1 * n + 0.3, 50), rng.uniform(-0.5, 0.5, 50), rng.uniform(2.0, 4.0, 50)]
+    )
     return scene
 
 
 # ---- the position rule (pure) --------------------------------------------------------------------
+
 
 def _check_order(flags: list[bool], every: int = EVERY) -> None:
     n, order = len(flags), safe_order(flags, every)
@@ -80,6 +100,7 @@ def test_downscaled_size_is_floor():
 
 # ---- a written dense scene ---------------------------------------------------------------------------
 
+
 def _dense_scene(folder: Path, n: int = 10, ext: str = ".png") -> Scene:
     """n real views + synthesized ones at -0.4, -0.2 (before the start), midpoints and one past the end."""
     scene = _photos(folder, n, ext)
@@ -89,8 +110,15 @@ def _dense_scene(folder: Path, n: int = 10, ext: str = ".png") -> Scene:
         a = int(np.clip(np.floor(idx), 0, n - 2))
         t = idx - a
         pose = interpolate_pose(scene.frames[a].pose, scene.frames[a + 1].pose, t)
-        targets.append(Frame(name=f"novel_{idx:07.2f}.png", pose=pose, index=idx, synthetic=True,
-                             image=rng.random((H, W, 3)).astype(np.float32)))
+        targets.append(
+            Frame(
+                name=f"novel_{idx:07.2f}.png",
+                pose=pose,
+                index=idx,
+                synthetic=True,
+                image=rng.random((H, W, 3)).astype(np.float32),
+            )
+        )
     return replace(scene, frames=sorted(scene.frames + targets, key=lambda f: f.index))
 
 
@@ -119,8 +147,12 @@ def test_split_lists_agree_with_synthetic_flags(written):
         assert (folder / fname).read_text().split() == split[k]
     assert (folder / "sparse" / "0" / "test.txt").read_text().split() == split["test"]
     # the project's readers: flags come back from transforms.json and from sparself.json (COLMAP, LLFF)
-    for back in (read_nerfstudio(folder), read_scene(folder), read_scene(folder / "sparse" / "0"),
-                 read_scene(folder / "poses_bounds.npy")):
+    for back in (
+        read_nerfstudio(folder),
+        read_scene(folder),
+        read_scene(folder / "sparse" / "0"),
+        read_scene(folder / "poses_bounds.npy"),
+    ):
         assert {f.name: f.synthetic for f in back.frames} == flag
 
 
@@ -205,8 +237,11 @@ def test_real_sfm_tracks_are_kept_and_synthesized_views_get_projected_ones(tmp_p
     assert len(src.meta["observations"]) == 9
     n_src = {n: len(o.point) for n, o in src.meta["observations"].items()}
     mid = interpolate_pose(src.frames[3].pose, src.frames[4].pose, 0.5)
-    dense = replace(src, frames=src.frames + [Frame(name="novel_0003.50.png", pose=mid, index=3.5, synthetic=True,
-                                                    image=np.zeros((H, W, 3), np.float32))])
+    dense = replace(
+        src,
+        frames=src.frames
+        + [Frame(name="novel_0003.50.png", pose=mid, index=3.5, synthetic=True, image=np.zeros((H, W, 3), np.float32))],
+    )
     dense.frames.sort(key=lambda f: f.index)
     out = write_scene(dense, tmp_path / "out", dense=DenseInfo(downscale=False))
     assert not (tmp_path / "out" / "images_2").exists()
@@ -218,8 +253,14 @@ def test_real_sfm_tracks_are_kept_and_synthesized_views_get_projected_ones(tmp_p
     for im in rec.images.values():
         f = by_name[im.name]
         obs = im.get_observation_points2D()
-        err = [np.linalg.norm((K @ (f.pose.R @ rec.points3D[p.point3D_id].xyz + f.pose.tvec))[:2] /
-                              (f.pose.R @ rec.points3D[p.point3D_id].xyz + f.pose.tvec)[2] - p.xy) for p in obs]
+        err = [
+            np.linalg.norm(
+                (K @ (f.pose.R @ rec.points3D[p.point3D_id].xyz + f.pose.tvec))[:2]
+                / (f.pose.R @ rec.points3D[p.point3D_id].xyz + f.pose.tvec)[2]
+                - p.xy
+            )
+            for p in obs
+        ]
         assert len(obs) >= 1 and max(err) < 1.0
         if f.synthetic:
             assert max(err) < 1e-6
@@ -230,7 +271,7 @@ def test_real_sfm_tracks_are_kept_and_synthesized_views_get_projected_ones(tmp_p
 def test_tracks_scale_with_a_resized_scene(tmp_path):
     src = _model_with_tracks(tmp_path / "src", offset=0.0)
     small = src.resized(12)  # 27x18 -> 12x8
-    from sparself.io.colmap import reconstruction_from_scene
+    from sparself.capture.io.colmap import reconstruction_from_scene
 
     rec = reconstruction_from_scene(small)
     f = small.frames[0]
@@ -272,10 +313,25 @@ def test_user_holdout_goes_to_val_and_test(tmp_path):
 
 def test_too_few_real_views_warns_and_keeps_index_order(tmp_path, caplog):
     scene = _photos(tmp_path / "src", 3)
-    extra = [Frame(name=f"novel_{i:07.2f}.png", pose=scene.frames[0].pose, index=0.05 * (i + 1), synthetic=True,
-                   image=np.zeros((H, W, 3), np.float32)) for i in range(19)]  # 22 views need 3 real at 0, 8, 16
-    extra += [Frame(name="novel_late.png", pose=scene.frames[0].pose, index=5.0, synthetic=True,
-                    image=np.zeros((H, W, 3), np.float32))]  # 23 views: 0, 8, 16 -> still 3
+    extra = [
+        Frame(
+            name=f"novel_{i:07.2f}.png",
+            pose=scene.frames[0].pose,
+            index=0.05 * (i + 1),
+            synthetic=True,
+            image=np.zeros((H, W, 3), np.float32),
+        )
+        for i in range(19)
+    ]  # 22 views need 3 real at 0, 8, 16
+    extra += [
+        Frame(
+            name="novel_late.png",
+            pose=scene.frames[0].pose,
+            index=5.0,
+            synthetic=True,
+            image=np.zeros((H, W, 3), np.float32),
+        )
+    ]  # 23 views: 0, 8, 16 -> still 3
     dense = replace(scene, frames=sorted(scene.frames + extra, key=lambda f: f.index))
     out = write_scene(dense, tmp_path / "ok", dense=DenseInfo(downscale=False))
     assert not any(out.frames[p].synthetic for p in (0, 8, 16))
@@ -322,7 +378,7 @@ def test_transforms_json_scene_brings_its_point_cloud_and_gets_tracks(tmp_path, 
     exports are): the points are read, and every written image observes some of them."""
     import pycolmap
 
-    from sparself.io import write_nerfstudio
+    from sparself.capture.io import write_nerfstudio
 
     scene = _dense_scene(tmp_path / "src", n=9)
     real = replace(scene, frames=[f for f in scene.frames if not f.synthetic])
@@ -330,9 +386,11 @@ def test_transforms_json_scene_brings_its_point_cloud_and_gets_tracks(tmp_path, 
     ply = tmp_path / "src" / "sparse_pc.ply"
     if binary:
         pts = np.asarray(scene.points, np.float32)
-        head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\nproperty float x\n"
-                "property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n"
-                "property uchar blue\nend_header\n").encode()
+        head = (
+            f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\nproperty float x\n"
+            "property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n"
+            "property uchar blue\nend_header\n"
+        ).encode()
         rec = np.zeros(len(pts), dtype=[(c, "<f4") for c in "xyz"] + [(c, "u1") for c in "rgb"])
         rec["x"], rec["y"], rec["z"], rec["r"] = pts[:, 0], pts[:, 1], pts[:, 2], 200
         ply.write_bytes(head + rec.tobytes())
@@ -359,8 +417,8 @@ def test_a_dense_scene_written_again_keeps_one_rank_prefix(written, tmp_path):
 def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, small_scene, tiny_cfg):
     """The pipeline end to end on the small plane scene (7 views, 40 x 28): the user's held-out view is
     val/test, synthesized views are train only, sparself.json names the run and plan beside the scene."""
-    from sparself.plan import PlanConfig
     from sparself.pipeline import DensifyConfig, densify
+    from sparself.synthesis.plan import PlanConfig
 
     cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2))
     densify(small_scene, tmp_path / "out", cfg)
@@ -400,9 +458,9 @@ def _check_masks(folder: Path, sj: dict) -> None:
 
 def test_no_downscaled_reaches_densify_and_synthesize(monkeypatch):
     """--no-downscaled on both commands that write a dense scene; the copies are on by default."""
-    from sparself import cli, pipeline, synthesize
-
-    from sparself.scene import Scene
+    from sparself import cli, pipeline
+    from sparself.capture.scene import Scene
+    from sparself.synthesis import synthesize
 
     seen = {}
 

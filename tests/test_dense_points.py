@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from planescene import DEPTH, camera_line, noise_scene, on_disk, plane_image, texture
-from sparself import triangulate as tr
-from sparself.io import read_nerfstudio, read_scene, write_scene
+from sparself.capture import triangulate as tr
+from sparself.capture.io import read_nerfstudio, read_scene, write_scene
+from sparself.capture.triangulate import MIN_POINTS, ensure_points
 from sparself.pipeline import DensifyConfig, densify
-from sparself.plan import PlanConfig
-from sparself.triangulate import MIN_POINTS, ensure_points
+from sparself.synthesis.plan import PlanConfig
 
 SIZE, FOCAL = (240, 160), 80.0  # the photos: enough SIFT features on the textured plane
 OUT_SIZE = 48  # the written scene and training: tiny
@@ -23,8 +23,10 @@ OUT_SIZE = 48  # the written scene and training: tiny
 
 def _capture(folder, formats) -> None:
     """6 photos of the plane Z = DEPTH on disk, posed in ``formats`` (no sparse points)."""
-    scene = on_disk(camera_line([0.1 * i for i in range(6)], SIZE, FOCAL, plane_image(),
-                                name="p{:02d}.png".format), folder / "photos")
+    scene = on_disk(
+        camera_line([0.1 * i for i in range(6)], SIZE, FOCAL, plane_image(), name="p{:02d}.png".format),
+        folder / "photos",
+    )
     write_scene(scene, folder / "capture", formats)
 
 
@@ -47,8 +49,9 @@ def _written_name(folder, source_name: str) -> str:
 
 
 def _densify(src, out, tiny_cfg) -> None:
-    cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(5,)), plan=PlanConfig(n_mid=2, n_extra=1),
-                        out_size=OUT_SIZE, downscaled=False)
+    cfg = DensifyConfig(
+        train=tiny_cfg(epochs=1, holdout=(5,)), plan=PlanConfig(n_mid=2, n_extra=1), out_size=OUT_SIZE, downscaled=False
+    )
     densify(src, out, cfg)
 
 
@@ -61,8 +64,9 @@ def _reprojection_errors(scene, f) -> np.ndarray:
 
 
 @pytest.mark.parametrize("fmt", ["llff", "nerfstudio"])
-def test_a_capture_without_points_is_written_with_points_from_its_real_photos(tmp_path, tiny_cfg, monkeypatch,
-                                                                               caplog, fmt):
+def test_a_capture_without_points_is_written_with_points_from_its_real_photos(
+    tmp_path, tiny_cfg, monkeypatch, caplog, fmt
+):
     _capture(tmp_path, (fmt,))
     calls = _spy(monkeypatch)
     with caplog.at_level(logging.INFO, logger="sparself"):
@@ -97,8 +101,9 @@ def test_a_capture_without_points_is_written_with_points_from_its_real_photos(tm
 def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeypatch):
     _capture(tmp_path, ("colmap",))
     rng = np.random.default_rng(1)
-    pts = np.column_stack([rng.uniform(-0.5, 1.0, MIN_POINTS), rng.uniform(-0.4, 0.4, MIN_POINTS),
-                           np.full(MIN_POINTS, DEPTH)])
+    pts = np.column_stack(
+        [rng.uniform(-0.5, 1.0, MIN_POINTS), rng.uniform(-0.4, 0.4, MIN_POINTS), np.full(MIN_POINTS, DEPTH)]
+    )
     colors = rng.integers(0, 256, (MIN_POINTS, 3), dtype=np.uint8)
     cap = read_scene(tmp_path / "capture")
     cap.points, cap.meta["point_colors"] = pts, colors
@@ -113,9 +118,9 @@ def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeyp
 
 
 def test_synthesize_gives_the_run_scene_points_from_its_training_photos(tmp_path, tiny_cfg, monkeypatch):
-    from sparself.plan import plan_poses, save_plan
-    from sparself.synthesize import synthesize_plan
-    from sparself.train import train_scene
+    from sparself.synthesis.plan import plan_poses, save_plan
+    from sparself.synthesis.synthesize import synthesize_plan
+    from sparself.synthesis.train import train_scene
 
     _capture(tmp_path, ("llff",))
     src = tmp_path / "capture"
@@ -147,8 +152,9 @@ def test_few_own_points_are_replaced_by_triangulated_ones():
 
 
 def test_no_triangulate_reaches_densify_and_synthesize(monkeypatch):
-    from sparself import cli, pipeline, synthesize
-    from sparself.scene import Scene
+    from sparself import cli, pipeline
+    from sparself.capture.scene import Scene
+    from sparself.synthesis import synthesize
 
     seen = {}
 

@@ -8,16 +8,20 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from planescene import F, H, W, render_plane
-from sparself import evaluate as ev
-from sparself.evaluate import EvalConfig, evenly_spaced, gap_truth, holdout_indices, make_split
-from sparself.geometry import Pose
-from sparself.scene import Camera, Frame, Scene, resize_image, save_image
-
+from sparself.capture.images import resize_image, save_image
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.geometry import Pose
+from sparself.evaluation import evaluate as ev
+from sparself.evaluation import protocol
+from sparself.evaluation.config import EvalConfig
+from sparself.evaluation.instruments import network_factory
+from sparself.evaluation.results import NETWORK_WEIGHTED
+from sparself.evaluation.split import evenly_spaced, gap_truth, holdout_indices, make_split
 
 # ---- split rules ----------------------------------------------------------------------------------
+
 
 def test_holdout_is_every_kth_interior_frame():
     assert holdout_indices(20, 8) == [8, 16]
@@ -78,15 +82,26 @@ class _NearestRenderer:
 
 
 def _tiny_cfg(**kw) -> EvalConfig:
-    base = dict(size=32, inputs=5, holdout_every=4, n_mid=2, n_extra=1, seeds=2, baselines=("nearest", "blend"),
-                densify_baselines=("blend",), examples=1, lpips=False, progress=False)
+    base = dict(
+        size=32,
+        inputs=5,
+        holdout_every=4,
+        n_mid=2,
+        n_extra=1,
+        seeds=2,
+        baselines=("nearest", "blend"),
+        densify_baselines=("blend",),
+        examples=1,
+        lpips=False,
+        progress=False,
+    )
     base.update(kw)
     return EvalConfig(**base)
 
 
 def _hooks():
-    from sparself.baselines import BASELINES
     from sparself.recon.nerf import fit as nerf_fit
+    from sparself.synthesis.baselines import BASELINES
 
     calls = []
 
@@ -95,11 +110,15 @@ def _hooks():
 
         def synth(sc, targets):
             return np.clip(BASELINES["blend"](sc, targets) + 0.01 * seed, 0, 1)
+
         return synth
 
-    recs = {"nearest": _NearestRenderer,
-            "nerf": lambda sc: nerf_fit(sc, steps=15, batch_rays=256, n_samples=8, levels=(8, 16), hidden=16,
-                                        progress=False, threads=1)}
+    recs = {
+        "nearest": _NearestRenderer,
+        "nerf": lambda sc: nerf_fit(
+            sc, steps=15, batch_rays=256, n_samples=8, levels=(8, 16), hidden=16, progress=False, threads=1
+        ),
+    }
     return dict(network=network, reconstructors=recs), calls
 
 
@@ -114,7 +133,7 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
     for p in held:  # held-out images are gone from where the scene says they are
         shutil.move(str(p), vault / p.name)
     read = []
-    real_load = ev._load_truth
+    real_load = protocol.load_truth
 
     def scoring_only(frame, size):
         if frame.path is not None and not frame.path.exists():
@@ -122,7 +141,7 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
             frame = replace(frame, path=vault / frame.path.name)
         return real_load(frame, size)
 
-    monkeypatch.setattr(ev, "_load_truth", scoring_only)
+    monkeypatch.setattr(protocol, "load_truth", scoring_only)
     hooks, calls = _hooks()
     out = tmp_path / "out"
     res = ev.evaluate([scene], out, cfg, **hooks)
@@ -185,22 +204,38 @@ def test_cli_evaluate_end_to_end_with_the_real_network(tmp_path, capsys):
     """sparself evaluate on a capture on disk: reader, CNN-LSTM (1 epoch), baselines, MPI, report."""
     import torch
 
+    from sparself.capture.io import write_scene
     from sparself.cli import main
-    from sparself.io import write_scene
 
     torch.set_num_threads(1)
     scene = _capture(tmp_path / "cap_images")
     write_scene(scene, tmp_path / "cap", formats=("llff",))
     out = tmp_path / "report"
-    rc = main(["evaluate", str(tmp_path / "cap"), "--out", str(out), "--quick", "--size", "32", "--inputs", "5",
-               "--epochs", "1", "--recon", "mpi", "-q"])
+    rc = main(
+        [
+            "evaluate",
+            str(tmp_path / "cap"),
+            "--out",
+            str(out),
+            "--quick",
+            "--size",
+            "32",
+            "--inputs",
+            "5",
+            "--epochs",
+            "1",
+            "--recon",
+            "mpi",
+            "-q",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     data = json.loads((out / "results.json").read_text())
     s = data["scenes"][0]
     assert s["status"] == "ok" and s["name"] == "cap"
     assert "sparself" in s["view_synthesis"] and s["densification"]["mpi"]["status"] == "ok"
     # the weighted row's weight choice: the real network synthesizes again from the 4 inputs not held back
-    sel = s["densification"]["mpi"][ev.NETWORK_WEIGHTED]["per_seed"][0]["selection"]
+    sel = s["densification"]["mpi"][NETWORK_WEIGHTED]["per_seed"][0]["selection"]
     assert len(sel["validation_sources"]) == 4 and not set(sel["validation_sources"]) & set(sel["validation_views"])
     assert data["settings"]["epochs"] == 1 and data["settings"]["size"] == 32
     assert "| Scene | mpi N | mpi N+synth | mpi change |" in (out / "report.md").read_text()
@@ -215,7 +250,7 @@ def test_missing_imagenet_weights_are_reported_once_per_evaluation(tmp_path, mon
     torch.set_num_threads(1)
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
     scene = _capture(tmp_path / "cap_images")
-    make = ev.network_factory(EvalConfig(size=32, epochs=1, seeds=2, progress=False))
+    make = network_factory(EvalConfig(size=32, epochs=1, seeds=2, progress=False))
     with caplog.at_level(logging.WARNING, logger="sparself"):
         for seed in (0, 1):
             make(scene, seed)
@@ -232,7 +267,7 @@ def test_partial_results_are_handed_out_after_each_step(tmp_path):
     def on_partial(res):  # a copy of what is finished at each call
         seen.append((sorted(res["view_synthesis"]), sorted(res.get("densification", {}))))
 
-    final = ev.evaluate_scene(scene, _tiny_cfg(seeds=1), None, on_partial=on_partial, **hooks)
+    final = protocol.evaluate_scene(scene, _tiny_cfg(seeds=1), None, on_partial=on_partial, **hooks)
     assert [s[1] for s in seen] == [[], [], ["nearest"], ["nearest", "nearest2"]]
     assert seen[0][0] == ["sparself"] and seen[1][0] == ["blend", "nearest", "sparself"]
     assert final["densification"]["nearest2"]["status"] == "ok"

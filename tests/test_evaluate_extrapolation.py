@@ -10,15 +10,18 @@ import numpy as np
 import pytest
 
 from sparself import batch
-from sparself import evaluate as ev
-from sparself.errors import ConfigError
-from sparself.evaluate import EvalConfig, evenly_spaced, holdout_indices, make_split
-from sparself.geometry import Pose
-from sparself.results import EXTRAPOLATED, INTERPOLATED
-from sparself.scene import Camera, Frame, Scene, save_image
-
+from sparself.capture.images import save_image
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.errors import ConfigError
+from sparself.core.geometry import Pose
+from sparself.evaluation import evaluate as ev
+from sparself.evaluation import protocol
+from sparself.evaluation.config import EvalConfig
+from sparself.evaluation.results import EXTRAPOLATED, INTERPOLATED
+from sparself.evaluation.split import evenly_spaced, holdout_indices, make_split
 
 # ---- the split ------------------------------------------------------------------------------------
+
 
 def test_auto_margin_on_a_184_frame_capture_keeps_real_photos_beyond_both_end_inputs():
     s = make_split(184, EvalConfig(inputs=25))  # llff_bird's shape: every 8th interior frame held out
@@ -92,23 +95,36 @@ def _capture(folder: Path) -> Scene:
     for i in range(N):
         path = folder / f"img{i:03d}.png"
         save_image(path, _flat(i, 0.0))
-        frames.append(Frame(path.name, Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([0.03 * i, 0, 0])),
-                            1, float(i), path))
+        frames.append(
+            Frame(path.name, Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([0.03 * i, 0, 0])), 1, float(i), path)
+        )
     return Scene({1: cam}, frames, bounds=(1.0, 10.0), source=folder)
 
 
 def _tiny_cfg(**kw) -> EvalConfig:
-    base = dict(size=SIDE, inputs=5, holdout_every=4, n_mid=2, n_extra=2, seeds=2, baselines=("fake",),
-                densify_baselines=(), examples=0, lpips=False, progress=False)
+    base = dict(
+        size=SIDE,
+        inputs=5,
+        holdout_every=4,
+        n_mid=2,
+        n_extra=2,
+        seeds=2,
+        baselines=("fake",),
+        densify_baselines=(),
+        examples=0,
+        lpips=False,
+        progress=False,
+    )
     return EvalConfig(**{**base, **kw})
 
 
 def _hooks(seen: list):
     """A network whose seed s doubles the error s times (PSNR - 6.02 dB per seed), a baseline with the
     error table, and a reconstructor whose error halves once it has more than the 5 inputs."""
+
     def network(scene, seed):
         seen.append(("network", sorted(int(f.index) for f in scene.frames)))
-        return lambda sc, targets: np.stack([_flat(round(t.index), _err(round(t.index)) * 2 ** seed) for t in targets])
+        return lambda sc, targets: np.stack([_flat(round(t.index), _err(round(t.index)) * 2**seed) for t in targets])
 
     class Renderer:
         def __init__(self, scene):
@@ -133,7 +149,7 @@ def _psnr(entry, group=None):
 
 def test_known_per_frame_scores_give_hand_checked_group_summaries(tmp_path):
     seen = []
-    res = ev.evaluate_scene(_capture(tmp_path / "cap"), _tiny_cfg(), None, **_hooks(seen))
+    res = protocol.evaluate_scene(_capture(tmp_path / "cap"), _tiny_cfg(), None, **_hooks(seen))
     assert res["protocol"]["extrapolated"] == ["img004.png", "img020.png"]  # of held-out 4, 8, 12, 16, 20
     fake = res["view_synthesis"]["fake"]
     assert [f["group"] for f in fake["frames"]] == [EXTRAPOLATED] + [INTERPOLATED] * 3 + [EXTRAPOLATED]
@@ -173,17 +189,21 @@ def test_report_rows_for_both_groups_and_seed_merge_keeps_them(tmp_path):
     md = (out / "report.md").read_text()
     rows = [ln for ln in md.splitlines() if ln.startswith("| cap: extrapolated (2) |")]
     # view synthesis (PSNR, SSIM), Tables 1-3 (PSNR, SSIM), and the reconstructor's comparison (PSNR, SSIM)
-    assert len(rows) == 6 and any(ln.startswith("| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | +6.02 |") for ln in rows)
+    assert len(rows) == 6 and any(
+        ln.startswith("| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | +6.02 |") for ln in rows
+    )
     assert any(ln.startswith("| cap: extrapolated (2) | 16.99 ± 3.01 | 20.00 |") for ln in rows)
     assert "| cap: interpolated (3) | 36.99 ± 3.01 | 40.00 |" in md
     # the reconstructor's comparison: the oracle's share per group too (6.02 of 6.02 dB), also for the weighted refit
     assert "| cap: extrapolated (2) | 20.00 | 26.02 ± 0.00 | 26.02 ± 0.00 | 26.02 | 100% | 100% |" in md
     assert "View synthesis at extrapolated planned poses" in md and "| cap | 16.99 ± 3.01 | 20.00 |" in md
     assert "extrapolated" in (out / "report.html").read_text()
-    assert "cap: view synthesis of extrapolated frames: sparself (16.99 dB) does not beat the best baseline, fake " \
+    assert (
+        "cap: view synthesis of extrapolated frames: sparself (16.99 dB) does not beat the best baseline, fake "
         "(20.00 dB)." in md
+    )
     # batch evaluate: one unit per seed, merged; the groups come back as mean ± std over the seeds
-    one = {s: ev.evaluate_scene(scene, _tiny_cfg(seeds=1, first_seed=s), None, **_hooks([])) for s in (0, 1)}
+    one = {s: protocol.evaluate_scene(scene, _tiny_cfg(seeds=1, first_seed=s), None, **_hooks([])) for s in (0, 1)}
     merged = batch.merge_seeds([(s, r, Path(f"seed{s}")) for s, r in one.items()])
     whole = res["scenes"][0]
     for sec in ("view_synthesis", "extrapolations"):

@@ -1,11 +1,12 @@
-"""Geometry written once (sparself.geometry), tested against known values and round trips."""
+"""Geometry written once (sparself.core.geometry), tested against known values and round trips."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sparself.geometry import (
+from sparself.capture.scene import Camera
+from sparself.core.geometry import (
     Pose,
     align_similarity,
     fov_deg,
@@ -20,7 +21,6 @@ from sparself.geometry import (
     slerp,
     transform_pose,
 )
-from sparself.scene import Camera
 
 
 def axis_angle_quat(axis, angle):
@@ -38,6 +38,7 @@ def same_rotation(a, b, tol=1e-9):
 
 
 # ---- SLERP -------------------------------------------------------------------------------------
+
 
 def test_slerp_endpoints():
     for q1, q2 in zip(random_quats(20, 1), random_quats(20, 2)):
@@ -94,6 +95,7 @@ def test_slerp_identical_quaternions_no_division_by_zero():
 
 # ---- rotations and poses ------------------------------------------------------------------------
 
+
 def test_quaternion_matrix_round_trip():
     for q in random_quats(50, 6):
         R = quat_to_rotmat(q)
@@ -140,6 +142,7 @@ def test_interpolate_pose_endpoints_and_straight_line_centres():
 
 
 # ---- cameras and homographies -------------------------------------------------------------------
+
 
 def test_fov_paper_example():
     assert fov_deg(1280, 1536) == pytest.approx(45.24, abs=0.01)

@@ -9,11 +9,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparself.errors import InputError, OutputError
-from sparself.geometry import Pose, rotmat_to_quat
-from sparself.io import (detect_format, read_colmap, read_llff, read_middlebury, read_nerfstudio, read_scene,
-                         write_colmap, write_llff, write_middlebury, write_nerfstudio, write_scene)
-from sparself.scene import Camera, Frame, Scene, save_image
+from sparself.capture.images import save_image
+from sparself.capture.io import (
+    detect_format,
+    read_colmap,
+    read_llff,
+    read_middlebury,
+    read_nerfstudio,
+    read_scene,
+    write_colmap,
+    write_llff,
+    write_middlebury,
+    write_nerfstudio,
+    write_scene,
+)
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.errors import InputError, OutputError
+from sparself.core.geometry import Pose, rotmat_to_quat
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -108,15 +120,17 @@ def test_opengl_axes_in_transforms_json(tmp_path):
     scene.frames[0] = Frame("000.png", _look_at(np.array([0.0, 0.0, 3.0])), 1, 0.0, scene.frames[0].path)
     write_nerfstudio(scene, tmp_path)
     M = np.array(json.loads((tmp_path / "transforms.json").read_text())["frames"][0]["transform_matrix"])
-    np.testing.assert_allclose(M[:3, 2], [0, 0, 1], atol=1e-12)   # back = away from the origin
-    np.testing.assert_allclose(M[:3, 1], [0, 1, 0], atol=1e-12)   # up = -(OpenCV down) = world +y
+    np.testing.assert_allclose(M[:3, 2], [0, 0, 1], atol=1e-12)  # back = away from the origin
+    np.testing.assert_allclose(M[:3, 1], [0, 1, 0], atol=1e-12)  # up = -(OpenCV down) = world +y
     np.testing.assert_allclose(M[:3, 3], [0, 0, 3], atol=1e-12)
 
 
 def test_nerf_synthetic_camera_angle_x(tmp_path):
     scene = _synthetic_scene(tmp_path, n=3)
-    frames = [{"file_path": "./images/" + f.name[:-4], "transform_matrix": (f.pose.c2w() @ np.diag([1, -1, -1, 1])).tolist()}
-              for f in scene.frames]
+    frames = [
+        {"file_path": "./images/" + f.name[:-4], "transform_matrix": (f.pose.c2w() @ np.diag([1, -1, -1, 1])).tolist()}
+        for f in scene.frames
+    ]
     fov = 2 * np.arctan(0.5 * W / 20.5)
     (tmp_path / "transforms_train.json").write_text(json.dumps({"camera_angle_x": fov, "frames": frames}))
     back = read_scene(tmp_path / "transforms_train.json")
@@ -127,8 +141,14 @@ def test_write_scene_layout_and_read_back(tmp_path):
     scene = _synthetic_scene(tmp_path / "src")
     out = tmp_path / "out"
     written = write_scene(scene, out)
-    for rel in ("images/000.png", "sparse/0/cameras.bin", "sparse/0/images.bin", "sparse/0/points3D.bin",
-                "poses_bounds.npy", "transforms.json"):
+    for rel in (
+        "images/000.png",
+        "sparse/0/cameras.bin",
+        "sparse/0/images.bin",
+        "sparse/0/points3D.bin",
+        "poses_bounds.npy",
+        "transforms.json",
+    ):
         assert (out / rel).is_file(), rel
     assert (out / "images" / "000.png").read_bytes() == scene.frames[0].path.read_bytes()  # copied bytes
     assert written.frames[0].path == out / "images" / "000.png"
@@ -167,6 +187,7 @@ def test_write_scene_in_memory_and_resized_images(tmp_path):
 
 # ---- published data ---------------------------------------------------------------------------------
 
+
 def _need(name: str) -> Path:
     p = DATA / name
     if not p.is_dir():
@@ -200,6 +221,7 @@ def test_middlebury_temple_ring_reads_existing_views():
 
 
 # ---- bad input ---------------------------------------------------------------------------------------
+
 
 def _llff_folder(tmp_path: Path) -> Path:
     scene = _synthetic_scene(tmp_path)

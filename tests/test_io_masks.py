@@ -14,12 +14,12 @@ import pytest
 from PIL import Image
 
 from planescene import camera_line, noise, on_disk
+from sparself.capture.io import DenseInfo, read_scene, write_scene
+from sparself.capture.io.dense import MASK_FLOOR
+from sparself.capture.scene import Frame, Scene
 from sparself.cli import main
-from sparself.errors import InputError
-from sparself.geometry import interpolate_pose
-from sparself.io import DenseInfo, read_scene, write_scene
-from sparself.io.dense import MASK_FLOOR
-from sparself.scene import Frame, Scene
+from sparself.core.errors import InputError
+from sparself.core.geometry import interpolate_pose
 
 W, H = 14, 10
 
@@ -33,10 +33,28 @@ def _confidence(seed: int) -> np.ndarray:
 
 def _dense(folder: Path) -> Scene:
     """5 photos on disk + 2 synthesized views (in memory, with confidence maps) between them."""
-    scene = on_disk(camera_line([0.1 * i for i in range(5)], (W, H), 12.0, lambda pose, cam, i: noise(H, W, i),
-                                bounds=(1.0, 5.0), name=lambda i: f"{i:02d}.png"), folder)
-    syn = [Frame(f"novel_{k}.png", interpolate_pose(scene.frames[k].pose, scene.frames[k + 1].pose, 0.5),
-                 index=k + 0.5, image=noise(H, W, 10 + k), synthetic=True, confidence=_confidence(k)) for k in (1, 2)]
+    scene = on_disk(
+        camera_line(
+            [0.1 * i for i in range(5)],
+            (W, H),
+            12.0,
+            lambda pose, cam, i: noise(H, W, i),
+            bounds=(1.0, 5.0),
+            name=lambda i: f"{i:02d}.png",
+        ),
+        folder,
+    )
+    syn = [
+        Frame(
+            f"novel_{k}.png",
+            interpolate_pose(scene.frames[k].pose, scene.frames[k + 1].pose, 0.5),
+            index=k + 0.5,
+            image=noise(H, W, 10 + k),
+            synthetic=True,
+            confidence=_confidence(k),
+        )
+        for k in (1, 2)
+    ]
     return replace(scene, frames=sorted(scene.frames + syn, key=lambda f: f.index))
 
 
@@ -48,8 +66,11 @@ def dense(tmp_path_factory):
     return written, tmp / "out"
 
 
-READS = {"colmap": lambda d: read_scene(d), "llff": lambda d: read_scene(d / "poses_bounds.npy"),
-         "nerfstudio": lambda d: read_scene(d / "transforms.json")}
+READS = {
+    "colmap": lambda d: read_scene(d),
+    "llff": lambda d: read_scene(d / "poses_bounds.npy"),
+    "nerfstudio": lambda d: read_scene(d / "transforms.json"),
+}
 
 
 @pytest.mark.parametrize("fmt", sorted(READS))
@@ -141,8 +162,14 @@ def _broken(folder: Path, tmp_path: Path, how: str) -> tuple[Path, Path]:
     return copy, mask
 
 
-@pytest.mark.parametrize("how,problem", [("missing", "no such mask file"), ("corrupt", "mask is not an image file"),
-                                         ("size", f"mask is {W + 1}x{H} but its image is {W}x{H}")])
+@pytest.mark.parametrize(
+    "how,problem",
+    [
+        ("missing", "no such mask file"),
+        ("corrupt", "mask is not an image file"),
+        ("size", f"mask is {W + 1}x{H} but its image is {W}x{H}"),
+    ],
+)
 def test_a_bad_mask_named_by_transforms_json_is_one_line_naming_it(dense, tmp_path, capsys, how, problem):
     _, folder = dense
     copy, mask = _broken(folder, tmp_path, how)

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparself.cli import main
 from planescene import noise_scene as make_scene
+from sparself.cli import main
 from test_bad_input import listing, one_error, run, write_posed
 
 TRAIN = ("--epochs", "1", "--size", "32", "--crop", "16", "--device", "cpu", "--batch-size", "6")
@@ -38,6 +38,7 @@ def _edit_first_image_line(images_txt: Path, field: int, value: str) -> None:
 
 # ---- section 5: remaining tracebacks and cryptic messages ------------------------------------------------------
 
+
 @pytest.mark.parametrize("cmd", ["info", "plan"])
 def test_zero_quaternion_in_images_txt(tmp_path, capsys, cmd):
     scene = _colmap_text(tmp_path / "s")
@@ -56,10 +57,13 @@ def test_camera_missing_from_cameras_txt(tmp_path, capsys):
     assert "Rig" not in line and "(it lists 1)" in line
 
 
-@pytest.mark.parametrize("case, pack, needles", [
-    ("zero quaternion", ("<4d", 12, (0.0, 0.0, 0.0, 0.0)), ("quaternion", "is zero")),
-    ("camera id missing", ("<I", 68, (7,)), ("camera 7 is not in", "cameras.bin", "(it lists 1)")),
-])
+@pytest.mark.parametrize(
+    "case, pack, needles",
+    [
+        ("zero quaternion", ("<4d", 12, (0.0, 0.0, 0.0, 0.0)), ("quaternion", "is zero")),
+        ("camera id missing", ("<I", 68, (7,)), ("camera 7 is not in", "cameras.bin", "(it lists 1)")),
+    ],
+)
 def test_binary_model_zero_quaternion_and_missing_camera(tmp_path, capsys, case, pack, needles):
     """The same checks in images.bin (image 1's record: id at byte 8, qvec at 12, camera id at 68)."""
     import struct
@@ -91,8 +95,16 @@ def test_llff_count_mismatch_names_the_extra_image(tmp_path, capsys):
         t = 2_000_000_000 if p.name == "00.png" else 1_000_000_000 + k  # 00.png: sorted first, added last
         os.utime(p, (t, t))
     code, _, err = run(capsys, "info", scene)
-    one_error(code, err, "info", "poses_bounds.npy", "6 poses but 7 images", "extra image 00.png", "newest",
-              case="extra image, guessed by age [info]")
+    one_error(
+        code,
+        err,
+        "info",
+        "poses_bounds.npy",
+        "6 poses but 7 images",
+        "extra image 00.png",
+        "newest",
+        case="extra image, guessed by age [info]",
+    )
     # a COLMAP model beside it (LLFF's imgs2poses leaves one) tells exactly which image has no pose
     write_posed(tmp_path / "c", make_scene(6), "colmap")
     shutil.copytree(tmp_path / "c" / "sparse", scene / "sparse")
@@ -112,9 +124,16 @@ def test_weights_pointing_at_a_text_file(tmp_path, capsys):
     txt = tmp_path / "weights.txt"
     txt.write_text("https://download.pytorch.org/models/resnet18-f37072fd.pth\n")
     code, _, err = run(capsys, "train", scene, "--out", tmp_path / "run", "--weights", txt, *TRAIN)
-    line = one_error(code, err, "train", "weights.txt", "cannot read as torch weights", "not a zip archive or a pickle",
-                     "--weights none",
-                     case="--weights text file [train]")
+    line = one_error(
+        code,
+        err,
+        "train",
+        "weights.txt",
+        "cannot read as torch weights",
+        "not a zip archive or a pickle",
+        "--weights none",
+        case="--weights text file [train]",
+    )
     assert "weights_only" not in err and "documentation" not in line
     assert not (tmp_path / "run").exists()
 
@@ -135,9 +154,10 @@ def test_poses_does_not_claim_to_downscale_small_photos(tmp_path, capsys):
 
 # ---- section 3: inputs that belong together must match ----------------------------------------------------------
 
+
 def _moved_scene(n: int = 6, dx: float = 0.1) -> "object":
     """make_scene's views with the same names, cameras spaced ``dx`` apart instead of 0.1."""
-    from sparself.geometry import Pose
+    from sparself.core.geometry import Pose
 
     s = make_scene(n)
     for i, f in enumerate(s.frames):
@@ -165,8 +185,17 @@ def run6(tmp_path_factory):
 
 
 def _synth(capsys, root: Path, out: Path, *extra, run_dir=None, plan=None):
-    return run(capsys, "synthesize", run_dir or root / "run", "--plan", plan or root / "plan_scene.json",
-               "--out", out, "-q", *extra)
+    return run(
+        capsys,
+        "synthesize",
+        run_dir or root / "run",
+        "--plan",
+        plan or root / "plan_scene.json",
+        "--out",
+        out,
+        "-q",
+        *extra,
+    )
 
 
 def test_run_records_its_scene_absolutely_and_synthesizes_from_elsewhere(run6, tmp_path, capsys, monkeypatch):
@@ -180,11 +209,14 @@ def test_run_records_its_scene_absolutely_and_synthesizes_from_elsewhere(run6, t
     assert (tmp_path / "dense" / "transforms.json").is_file()
 
 
-@pytest.mark.parametrize("other, needles", [
-    ("eight", ("plan_eight.json", "plan was made for 8 views", "this scene has 6")),
-    ("renamed", ("plan_renamed.json", "plan was made for other views", "00.jpg")),
-    ("wider", ("plan_wider.json", "cameras elsewhere")),
-])
+@pytest.mark.parametrize(
+    "other, needles",
+    [
+        ("eight", ("plan_eight.json", "plan was made for 8 views", "this scene has 6")),
+        ("renamed", ("plan_renamed.json", "plan was made for other views", "00.jpg")),
+        ("wider", ("plan_wider.json", "cameras elsewhere")),
+    ],
+)
 def test_plan_made_for_another_scene_is_refused(run6, tmp_path, capsys, other, needles):
     code, _, err = _synth(capsys, run6, tmp_path / "dense", plan=run6 / f"plan_{other}.json")
     one_error(code, err, "synthesize", *needles, case=f"plan for another scene ({other}) [synthesize]")
@@ -204,11 +236,14 @@ def _far_index(doc: dict) -> None:
     doc["frames"][0]["index"] = 23.5
 
 
-@pytest.mark.parametrize("case, edit, needles", [
-    ("empty", lambda d: d.__setitem__("frames", []), ("the plan has no frames", "--n-mid")),
-    ("version", lambda d: d.__setitem__("version", 2), ("plan version 2", "version 1")),
-    ("far index", _far_index, ("planned index 23.5", "outside this scene's views 0..5")),
-])
+@pytest.mark.parametrize(
+    "case, edit, needles",
+    [
+        ("empty", lambda d: d.__setitem__("frames", []), ("the plan has no frames", "--n-mid")),
+        ("version", lambda d: d.__setitem__("version", 2), ("plan version 2", "version 1")),
+        ("far index", _far_index, ("planned index 23.5", "outside this scene's views 0..5")),
+    ],
+)
 def test_plan_version_emptiness_and_index_range(run6, tmp_path, capsys, case, edit, needles):
     plan = _edited_plan(run6, tmp_path / "p.json", edit)
     code, _, err = _synth(capsys, run6, tmp_path / "dense", plan=plan)
@@ -217,16 +252,22 @@ def test_plan_version_emptiness_and_index_range(run6, tmp_path, capsys, case, ed
 
 
 def test_plan_of_nothing_is_refused(run6, tmp_path, capsys):
-    code, _, err = run(capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "0",
-                       "--n-extra", "0")
+    code, _, err = run(capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "0", "--n-extra", "0")
     one_error(code, err, "plan", "--n-mid 0", "--n-extra 0", case="empty plan [plan]")
     assert not (tmp_path / "p.json").exists()
 
 
 def test_synthesize_with_another_scene_is_refused(run6, tmp_path, capsys):
     code, _, err = _synth(capsys, run6, tmp_path / "dense", "--scene", run6 / "wider")
-    one_error(code, err, "synthesize", "wider", "not the scene the run", "cameras are elsewhere",
-              case="--scene of another capture [synthesize]")
+    one_error(
+        code,
+        err,
+        "synthesize",
+        "wider",
+        "not the scene the run",
+        "cameras are elsewhere",
+        case="--scene of another capture [synthesize]",
+    )
 
 
 def test_moved_scene_says_pass_scene(run6, tmp_path, capsys):
@@ -245,22 +286,31 @@ def test_moved_scene_says_pass_scene(run6, tmp_path, capsys):
 
 
 def test_swapped_synthesize_arguments(run6, tmp_path, capsys):
-    code, _, err = run(capsys, "synthesize", run6 / "plan_scene.json", "--plan", run6 / "run",
-                       "--out", tmp_path / "dense")
+    code, _, err = run(
+        capsys, "synthesize", run6 / "plan_scene.json", "--plan", run6 / "run", "--out", tmp_path / "dense"
+    )
     one_error(code, err, "synthesize", "plan_scene.json", "arguments are swapped", case="swapped arguments")
     assert not (tmp_path / "dense").exists()
 
 
-@pytest.mark.parametrize("other, needles", [("eight", ("trained on 6 views", "has 8")),
-                                            ("wider", ("cameras are elsewhere",))])
+@pytest.mark.parametrize(
+    "other, needles", [("eight", ("trained on 6 views", "has 8")), ("wider", ("cameras are elsewhere",))]
+)
 def test_resume_on_another_scene_is_refused(run6, tmp_path, capsys, other, needles):
     run_dir = tmp_path / "run"
     shutil.copytree(run6 / "run", run_dir)
     before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
-    code, _, err = run(capsys, "train", run6 / other, "--out", run_dir, *TRAIN[:1], "2", *TRAIN[2:],
-                       "--resume", "-q")
-    one_error(code, err, "train", other, "not the scene", "resume with that scene", *needles,
-              case=f"--resume on another scene ({other}) [train]")
+    code, _, err = run(capsys, "train", run6 / other, "--out", run_dir, *TRAIN[:1], "2", *TRAIN[2:], "--resume", "-q")
+    one_error(
+        code,
+        err,
+        "train",
+        other,
+        "not the scene",
+        "resume with that scene",
+        *needles,
+        case=f"--resume on another scene ({other}) [train]",
+    )
     assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before
 
 
@@ -281,20 +331,31 @@ def test_every_command_ends_with_a_summary(run6, tmp_path, capsys):
     code, out, err = run(capsys, "train", run6 / "scene", "--out", tmp_path / "run", *TRAIN, "-q")
     assert code == 0, err
     line = _one_stdout_line(out)
-    assert re.match(rf"trained 1 epoch on 6 real views -> {re.escape(str(tmp_path / 'run'))} "
-                    rf"\(checkpoint.pt, config.json, train_log.csv\){SUMMARY}", line), line
-    code, out, err = run(capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "3",
-                         "--n-extra", "1", "-q")
+    assert re.match(
+        rf"trained 1 epoch on 6 real views -> {re.escape(str(tmp_path / 'run'))} "
+        rf"\(checkpoint.pt, config.json, train_log.csv\){SUMMARY}",
+        line,
+    ), line
+    code, out, err = run(
+        capsys, "plan", run6 / "scene", "--out", tmp_path / "p.json", "--n-mid", "3", "--n-extra", "1", "-q"
+    )
     assert code == 0 and re.match(rf"planned 4 novel poses -> .*p.json{SUMMARY}", _one_stdout_line(out)), out
     code, out, err = _synth(capsys, run6, tmp_path / "dense", plan=tmp_path / "p.json")
     line = _one_stdout_line(out)
-    assert code == 0 and re.match(rf"wrote 10 views \(6 real \+ 4 synthesized\) -> .*dense \(images/, sparse/0, "
-                                  rf"poses_bounds.npy, transforms.json\){SUMMARY}", line), line
-    code, out, err = run(capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *DENSIFY, "--n-mid", "2",
-                         "--n-extra", "1", "-q")
+    assert code == 0 and re.match(
+        rf"wrote 10 views \(6 real \+ 4 synthesized\) -> .*dense \(images/, sparse/0, "
+        rf"poses_bounds.npy, transforms.json\){SUMMARY}",
+        line,
+    ), line
+    code, out, err = run(
+        capsys, "densify", run6 / "scene", "--out", tmp_path / "d", *DENSIFY, "--n-mid", "2", "--n-extra", "1", "-q"
+    )
     line = _one_stdout_line(out)
-    assert code == 0 and re.match(rf"wrote 9 views \(6 real \+ 3 synthesized\) -> .*d/scene \(run: .*d/run, "
-                                  rf"plan: .*d/plan.json\){SUMMARY}", line), line
+    assert code == 0 and re.match(
+        rf"wrote 9 views \(6 real \+ 3 synthesized\) -> .*d/scene \(run: .*d/run, "
+        rf"plan: .*d/plan.json\){SUMMARY}",
+        line,
+    ), line
     assert "INFO" not in err  # -q: warnings only
 
 
@@ -323,8 +384,9 @@ def test_training_bar_only_on_a_terminal_and_never_with_q(run6, tmp_path, capsys
     term = _Terminal()
     if tty:
         monkeypatch.setattr(sys, "stderr", term)
-    code = main([str(a) for a in ("train", run6 / "scene", "--out", tmp_path / "run", *TRAIN)]
-                + (["-q"] if quiet else []))
+    code = main(
+        [str(a) for a in ("train", run6 / "scene", "--out", tmp_path / "run", *TRAIN)] + (["-q"] if quiet else [])
+    )
     err = term.buf.getvalue() if tty else capsys.readouterr().err
     assert code == 0, err
     assert ("\r" in err) == bar, err
@@ -341,7 +403,7 @@ def test_evaluate_bars_only_on_a_terminal_and_never_with_q(tmp_path, monkeypatch
     """What evaluate is asked to draw (its work is replaced: the full run is tested below)."""
     import sys
 
-    from sparself import evaluate as ev
+    from sparself.evaluation import evaluate as ev
 
     seen = {}
 
@@ -363,15 +425,35 @@ def test_evaluate_log_file_lpips_notice_and_report(tmp_path, monkeypatch):
     import sys
 
     import test_evaluate as te
-    from sparself.io import write_scene
+    from sparself.capture.io import write_scene
 
     write_scene(te._capture(tmp_path / "cap_images"), tmp_path / "cap", formats=("llff",))
     env = dict(os.environ, TORCH_HOME=str(tmp_path / "torch"), OMP_NUM_THREADS="1")
     env.pop("SPARSELF_LPIPS_DIR", None)
     with open(tmp_path / "log.txt", "w") as log:
-        code = subprocess.call([sys.executable, "-m", "sparself.cli", "evaluate", str(tmp_path / "cap"), "--out",
-                                str(tmp_path / "report"), "--quick", "--size", "32", "--inputs", "5", "--epochs", "1",
-                                "--recon", "mpi"], stdout=log, stderr=subprocess.STDOUT, env=env)
+        code = subprocess.call(
+            [
+                sys.executable,
+                "-m",
+                "sparself.cli",
+                "evaluate",
+                str(tmp_path / "cap"),
+                "--out",
+                str(tmp_path / "report"),
+                "--quick",
+                "--size",
+                "32",
+                "--inputs",
+                "5",
+                "--epochs",
+                "1",
+                "--recon",
+                "mpi",
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
     text = (tmp_path / "log.txt").read_text()
     assert code == 0, text
     assert "\r" not in text and "\x1b" not in text and "it/s" not in text, text
@@ -386,7 +468,7 @@ def test_evaluate_log_file_lpips_notice_and_report(tmp_path, monkeypatch):
 def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(run6, tmp_path, capsys, monkeypatch):
     import shlex
 
-    import sparself.train as tr
+    import sparself.synthesis.train as tr
 
     real = tr._append_log
 
@@ -396,8 +478,7 @@ def test_ctrl_c_keeps_the_checkpoint_and_prints_the_resume_command(run6, tmp_pat
         real(path, epoch, *a)
 
     monkeypatch.setattr(tr, "_append_log", stop_at_7)
-    code, out, err = run(capsys, "train", run6 / "scene", "--out", tmp_path / "run", "--epochs", "8",
-                         *TRAIN[2:], "-q")
+    code, out, err = run(capsys, "train", run6 / "scene", "--out", tmp_path / "run", "--epochs", "8", *TRAIN[2:], "-q")
     assert code == 130 and out == "", err
     lines = [ln for ln in err.splitlines() if ln.startswith("sparself train:")]
     assert len(lines) == 1 and "Traceback" not in err, err
@@ -425,8 +506,9 @@ def test_repeated_per_view_messages_are_said_once_with_a_count(run6, tmp_path, c
     said = [ln for ln in err.splitlines() if "converted to RGB" in ln]
     assert len(said) == 1 and "4 grayscale" in said[0] and "01.png, 02.png, 03.png, 04.png" in said[0], err
     # synthesize reads the scene's depth bounds more than once: the warning is said once
-    code, out, err = run(capsys, "synthesize", run6 / "run", "--plan", run6 / "plan_scene.json",
-                         "--out", tmp_path / "dense")
+    code, out, err = run(
+        capsys, "synthesize", run6 / "run", "--plan", run6 / "plan_scene.json", "--out", tmp_path / "dense"
+    )
     assert code == 0, err
     assert err.count("guessing near/far from camera layout") == 1, err
 
@@ -436,20 +518,27 @@ def test_messages_about_many_files_are_collected():
     and said once at the end, naming them."""
     import logging
 
-    from sparself.cli import _Repeats
+    from sparself.core.logs import Repeats as _Repeats
 
     rep = _Repeats()
 
     def rec(msg, *args):
         return logging.LogRecord("sparself.x", logging.WARNING, __file__, 1, msg, args, None)
 
-    shown = [r.getMessage() for r in (rec("%s: distortion dropped", f"{i:02d}.png") for i in range(8))
-             if rep.filter(r)]
-    shown += [r.getMessage() for r in (rec("no bounds; guessing"), rec("no bounds; guessing"),
-                                       rec("%s: %s image converted", "a.png", "RGBA")) if rep.filter(r)]
+    shown = [r.getMessage() for r in (rec("%s: distortion dropped", f"{i:02d}.png") for i in range(8)) if rep.filter(r)]
+    shown += [
+        r.getMessage()
+        for r in (
+            rec("no bounds; guessing"),
+            rec("no bounds; guessing"),
+            rec("%s: %s image converted", "a.png", "RGBA"),
+        )
+        if rep.filter(r)
+    ]
     assert shown == ["00.png: distortion dropped", "no bounds; guessing", "a.png: RGBA image converted"]
-    assert [r.getMessage() for r in rep.rest()] == ["01.png, 02.png, 03.png, 04.png, 05.png, ... (7 more): "
-                                                    "distortion dropped"]
+    assert [r.getMessage() for r in rep.rest()] == [
+        "01.png, 02.png, 03.png, 04.png, 05.png, ... (7 more): distortion dropped"
+    ]
 
 
 def test_llff_focal_scaling_said_once(tmp_path, capsys):
@@ -479,7 +568,7 @@ def test_info_separates_real_and_synthesized_views_and_says_where_bounds_come_fr
 
 
 def test_ctrl_c_in_densify_says_nothing_was_written(run6, tmp_path, capsys, monkeypatch):
-    import sparself.train as tr
+    import sparself.synthesis.train as tr
 
     def stop(*a):
         raise KeyboardInterrupt

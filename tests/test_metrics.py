@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from skimage.metrics import structural_similarity
 
-from sparself import metrics
-from sparself.metrics import lpips, lpips_status, psnr, ssim, summarize
+from sparself.core import metrics
+from sparself.core.metrics import lpips, lpips_status, psnr, ssim, summarize
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -56,7 +56,7 @@ def test_ssim_matches_skimage_real_pair():
     folder = DATA / "llff_bird" / "images"
     if not folder.is_dir():
         pytest.skip("shared data not present")
-    from sparself.scene import load_image
+    from sparself.capture.images import load_image
 
     a = load_image(folder / "010.jpg", size=(68, 120)).astype(np.float64)
     b = load_image(folder / "012.jpg", size=(68, 120)).astype(np.float64)
@@ -68,8 +68,9 @@ def test_ssim_matches_skimage_real_pair():
 def test_lpips_unavailable_without_weights(tmp_path, monkeypatch):
     monkeypatch.delenv("SPARSELF_LPIPS_DIR", raising=False)
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
-    monkeypatch.setattr(metrics, "_candidate_dirs", lambda d, f=metrics._candidate_dirs: [
-        p for p in f(d) if p.name != "v0.1"])  # an installed lpips package must not count here
+    monkeypatch.setattr(
+        metrics, "_candidate_dirs", lambda d, f=metrics._candidate_dirs: [p for p in f(d) if p.name != "v0.1"]
+    )  # an installed lpips package must not count here
     a = np.zeros((32, 32, 3))
     assert lpips(a, a, weights_dir=tmp_path) is None
     status = lpips_status(tmp_path)
@@ -90,8 +91,9 @@ def test_lpips_loader_plumbing_with_stand_in_files(tmp_path, monkeypatch):
         alex[f"features.{i}.weight"] = torch.randn(s, generator=g) * 0.05
         alex[f"features.{i}.bias"] = torch.zeros(s[0])
     alex["classifier.1.weight"] = torch.zeros(2, 2)  # present in torchvision's file, ignored
-    lin = {f"lin{i}.model.1.weight": torch.rand((1, c, 1, 1), generator=g)
-           for i, c in enumerate((64, 192, 384, 256, 256))}
+    lin = {
+        f"lin{i}.model.1.weight": torch.rand((1, c, 1, 1), generator=g) for i, c in enumerate((64, 192, 384, 256, 256))
+    }
     torch.save(alex, tmp_path / "alexnet-owt-7be5be79.pth")
     torch.save(lin, tmp_path / "alex.pth")
     assert lpips_status(tmp_path).startswith("available")

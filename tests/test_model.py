@@ -9,10 +9,18 @@ import numpy as np
 import pytest
 import torch
 
-from sparself.errors import ConfigError, InputError
-from sparself.geometry import Pose, rotmat_to_quat
-from sparself.model import (CNNLSTM, FCDecoder, PoseNorm, ResNet18, SweepDecoder, load_resnet18_weights,
-                            positional_encoding, sequence_layout)
+from sparself.core.errors import ConfigError, InputError
+from sparself.core.geometry import Pose, rotmat_to_quat
+from sparself.model import (
+    CNNLSTM,
+    FCDecoder,
+    PoseNorm,
+    ResNet18,
+    SweepDecoder,
+    load_resnet18_weights,
+    positional_encoding,
+    sequence_layout,
+)
 from sparself.model import backbone as bb_mod
 
 torch.set_num_threads(1)  # shared cores: 1 thread is faster there
@@ -23,9 +31,17 @@ def test_backbone_keys_follow_torchvision_layout_and_pool_to_512():
     keys = list(m.state_dict())
     # torchvision's resnet18().state_dict() has 122 entries; without fc.weight / fc.bias: 120
     assert len(keys) == 120
-    for k in ["conv1.weight", "bn1.running_mean", "bn1.num_batches_tracked", "layer1.0.conv1.weight",
-              "layer1.1.bn2.bias", "layer2.0.downsample.0.weight", "layer2.0.downsample.1.running_var",
-              "layer4.1.conv2.weight", "layer4.1.bn2.weight"]:
+    for k in [
+        "conv1.weight",
+        "bn1.running_mean",
+        "bn1.num_batches_tracked",
+        "layer1.0.conv1.weight",
+        "layer1.1.bn2.bias",
+        "layer2.0.downsample.0.weight",
+        "layer2.0.downsample.1.running_var",
+        "layer4.1.conv2.weight",
+        "layer4.1.bn2.weight",
+    ]:
         assert k in keys
     assert not any(k.startswith("fc.") for k in keys)
     assert "layer1.0.downsample.0.weight" not in keys  # no projection where shapes already match
@@ -44,8 +60,10 @@ def test_backbone_batchnorm_is_frozen_so_frames_do_not_mix():
 
 def _torchvision_style_checkpoint(path, seed=0):
     g = torch.Generator().manual_seed(seed)
-    sd = {k: (torch.rand(v.shape, generator=g) if v.is_floating_point() else v.clone())
-          for k, v in ResNet18().state_dict().items()}
+    sd = {
+        k: (torch.rand(v.shape, generator=g) if v.is_floating_point() else v.clone())
+        for k, v in ResNet18().state_dict().items()
+    }
     sd["fc.weight"] = torch.rand(1000, 512, generator=g)  # torchvision's file still has the classifier
     sd["fc.bias"] = torch.rand(1000, generator=g)
     torch.save(sd, path)
@@ -123,8 +141,9 @@ def test_pose_vectors_ignore_world_origin_and_scale_and_quaternion_sign():
     assert np.all(v[:, 3] >= 0)
     flipped = Pose(-poses[0].qvec, poses[0].tvec)
     assert np.allclose(norm.vector(flipped), v[0])
-    assert np.allclose(np.linalg.norm(v[:, :3], axis=1),
-                       np.linalg.norm(centers - centers.mean(0), axis=1) / 2.0, atol=1e-5)
+    assert np.allclose(
+        np.linalg.norm(v[:, :3], axis=1), np.linalg.norm(centers - centers.mean(0), axis=1) / 2.0, atol=1e-5
+    )
 
 
 def _net(decoder=None, context=True):
@@ -139,18 +158,35 @@ def test_causal_contexts_equal_the_lstm_over_each_full_sequence():
     src_pos = np.arange(s, dtype=np.float64)
     # leave-one-out queries (target t replaced by its query step) ...
     t = np.array([0, 2, 5])
-    ref = net.contexts_reference(feats, vec, torch.tensor(src_pos).float(), vec[t], torch.tensor(t).float(),
-                                 torch.from_numpy(sequence_layout(s, src_pos, src_pos[t], t)))
-    got = net.contexts(feats, vec, torch.tensor(src_pos).float(), vec[t], torch.tensor(t).float(),
-                       torch.as_tensor(t))
+    ref = net.contexts_reference(
+        feats,
+        vec,
+        torch.tensor(src_pos).float(),
+        vec[t],
+        torch.tensor(t).float(),
+        torch.from_numpy(sequence_layout(s, src_pos, src_pos[t], t)),
+    )
+    got = net.contexts(feats, vec, torch.tensor(src_pos).float(), vec[t], torch.tensor(t).float(), torch.as_tensor(t))
     assert torch.allclose(got, ref, atol=1e-5)
     # ... and novel queries at fractional positions among all sources, one sequence each
     q = np.array([-1.2, 0.5, 3.5, 6.2])
     qv = torch.randn(4, 7)
-    ref = net.contexts_reference(feats, vec, torch.tensor(src_pos).float(), qv, torch.tensor(q).float(),
-                                 torch.from_numpy(sequence_layout(s, src_pos, q, -np.ones(4, np.int64))))
-    got = net.contexts(feats, vec, torch.tensor(src_pos).float(), qv, torch.tensor(q).float(),
-                       torch.as_tensor(np.searchsorted(src_pos, q, side="right")))
+    ref = net.contexts_reference(
+        feats,
+        vec,
+        torch.tensor(src_pos).float(),
+        qv,
+        torch.tensor(q).float(),
+        torch.from_numpy(sequence_layout(s, src_pos, q, -np.ones(4, np.int64))),
+    )
+    got = net.contexts(
+        feats,
+        vec,
+        torch.tensor(src_pos).float(),
+        qv,
+        torch.tensor(q).float(),
+        torch.as_tensor(np.searchsorted(src_pos, q, side="right")),
+    )
     assert torch.allclose(got, ref, atol=1e-5)
 
 
@@ -165,8 +201,14 @@ def test_sequence_layout_puts_the_query_in_index_order():
 
 def test_no_context_ablation_zeroes_the_decoder_input():
     net = _net(context=False)
-    h = net.contexts(torch.randn(3, 512), torch.randn(3, 7), torch.arange(3.0), torch.randn(2, 7),
-                     torch.tensor([0.5, 1.5]), torch.tensor([1, 2]))
+    h = net.contexts(
+        torch.randn(3, 512),
+        torch.randn(3, 7),
+        torch.arange(3.0),
+        torch.randn(2, 7),
+        torch.tensor([0.5, 1.5]),
+        torch.tensor([1, 2]),
+    )
     assert h.shape == (2, 512) and torch.count_nonzero(h) == 0
 
 
@@ -206,7 +248,9 @@ def test_sweep_volume_last_plane_is_the_plain_blend_input():
     assert torch.allclose(x[3:6, -1], src[1, :, 2:12, 4:16], atol=1e-5)
     # plain-blend weights: the target is 1 from source 0 and 2 from source 1 -> 2/3, 1/3
     assert torch.allclose(blend_weights(w2c[:2].double(), w2c[2].double()), torch.tensor([2 / 3, 1 / 3]).double())
-    assert torch.allclose(x[6, -1], torch.full((10, 12), 2 / 3)) and torch.allclose(x[7, -1], torch.full((10, 12), 1 / 3))
+    assert torch.allclose(x[6, -1], torch.full((10, 12), 2 / 3)) and torch.allclose(
+        x[7, -1], torch.full((10, 12), 1 / 3)
+    )
 
 
 def test_sweep_gate_interpolates_between_the_sweep_and_the_plain_blend():
@@ -221,7 +265,9 @@ def test_sweep_gate_interpolates_between_the_sweep_and_the_plain_blend():
     no_gate = SweepDecoder(4, gate=False)
     sweep_only = no_gate.decode_volume(x, ctx)
     half = SweepDecoder(4, gate_init=0.0)
-    half.load_state_dict({**no_gate.state_dict(), **{k: v for k, v in half.state_dict().items() if k.startswith("gate")}})
+    half.load_state_dict(
+        {**no_gate.state_dict(), **{k: v for k, v in half.state_dict().items() if k.startswith("gate")}}
+    )
     assert torch.allclose(half.decode_volume(x, ctx), 0.5 * sweep_only + 0.5 * plain, atol=1e-5)
 
 
@@ -259,8 +305,16 @@ def test_fused_source_states_equal_the_step_by_step_lstm_values_and_gradients():
         H, C = fn(x)
         w = torch.linspace(-1, 1, H.numel(), dtype=torch.float64).view_as(H)
         ((H * w).sum() + (C * w.flip(0)).sum()).backward()
-        outs.append((H.detach(), C.detach(), x.grad.clone(), net.lstm.weight_hh_l0.grad.clone(),
-                     net.lstm.weight_ih_l1.grad.clone(), net.lstm.bias_hh_l1.grad.clone()))
+        outs.append(
+            (
+                H.detach(),
+                C.detach(),
+                x.grad.clone(),
+                net.lstm.weight_hh_l0.grad.clone(),
+                net.lstm.weight_ih_l1.grad.clone(),
+                net.lstm.bias_hh_l1.grad.clone(),
+            )
+        )
     assert outs[0][0].shape == (31, 2, 512)
     for a, b in zip(*outs):
         assert torch.allclose(a, b, atol=1e-9, rtol=1e-7)
@@ -304,7 +358,7 @@ def test_k_nearest_source_sets_never_contain_the_target():
             assert s[:2] == leave_one_out(src).sets[t]  # the pair comes first
             rest = [i for i in range(len(src)) if i not in (t, *s[:2])]
             d = np.linalg.norm(centres - centres[t], axis=1)
-            assert sorted(d[list(s[2:])]) == sorted(d[rest])[:len(s) - 2]  # the nearest others
+            assert sorted(d[list(s[2:])]) == sorted(d[rest])[: len(s) - 2]  # the nearest others
     q = novel_queries(src, src.K[:1].numpy(), src.w2c[3:4].numpy(), src.vectors[:1].numpy(), [2.5], src.hw, k=4)
     assert q.sets[0][:2] == (2, 3) and len(q.sets[0]) == 4 and 3 in q.sets[0]
 
@@ -339,15 +393,15 @@ def test_confidence_is_low_where_the_sources_disagree():
     gen = torch.Generator().manual_seed(0)
     c1 = torch.rand(1, 3, d + 1, h, w, generator=gen)
     c2 = torch.rand(1, 3, d + 1, h, w, generator=gen)
-    c2[:, :, 2, :, w // 2:] = c1[:, :, 2, :, w // 2:]  # the right half's true depth: plane 2
-    c2[:, :, d, :, w // 2:] = c1[:, :, d, :, w // 2:]  # and the aligned pair agrees there
+    c2[:, :, 2, :, w // 2 :] = c1[:, :, 2, :, w // 2 :]  # the right half's true depth: plane 2
+    c2[:, :, d, :, w // 2 :] = c1[:, :, d, :, w // 2 :]  # and the aligned pair agrees there
     v = torch.ones(1, 1, d + 1, h, w)
     x = torch.cat([c1, c2, v, v], 1)
     for gate_init in (-5.0, 0.0, 5.0):
         dec = SweepDecoder(gate_init=gate_init)
         conf = dec.decode_parts(x, torch.zeros(1, 512)).confidence[0, 0]
         assert conf.shape == (h, w) and 0 <= conf.min() and conf.max() <= 1
-        left, right = conf[:, 2: w // 2 - 3].mean(), conf[:, w // 2 + 3: -2].mean()
+        left, right = conf[:, 2 : w // 2 - 3].mean(), conf[:, w // 2 + 3 : -2].mean()
         assert right > 0.5 and left < 0.2 * right, (gate_init, left, right)
     # the parts: an ambiguous depth lowers confidence only where the candidate depths' colours differ
     flat = torch.full((1, 1, d, 2, 2), 1.0 / d)

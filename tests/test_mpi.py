@@ -5,12 +5,12 @@ import pytest
 import torch
 
 from planescene import DEPTH, NUM_PLANES, plane_scene, render_plane, seen_by_all
-from sparself.errors import ConfigError
-from sparself.geometry import Pose, plane_homography, rotmat_to_quat
-from sparself.metrics import psnr
+from sparself.capture.scene import Camera
+from sparself.core.errors import ConfigError
+from sparself.core.geometry import Pose, plane_homography, rotmat_to_quat
+from sparself.core.metrics import psnr
 from sparself.recon import RECONSTRUCTORS, Renderer, get_reconstructor
 from sparself.recon.mpi import MpiConfig, fit, render_mpi
-from sparself.scene import Camera
 
 torch.set_num_threads(2)
 

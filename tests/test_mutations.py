@@ -23,8 +23,8 @@ from test_bad_input import make_scene, need, write_posed
 from test_output_safety import TINY
 
 SEED = 14
-N_PLAN = 90    # mutated plans, each through `synthesize`
-N_POSE = 160   # mutated pose files, each through `info` and `plan` (every 8th also `synthesize --scene`)
+N_PLAN = 90  # mutated plans, each through `synthesize`
+N_POSE = 160  # mutated pose files, each through `info` and `plan` (every 8th also `synthesize --scene`)
 
 
 def snapshot(root: Path) -> dict:
@@ -52,8 +52,10 @@ def sandbox(tmp_path_factory) -> dict:
     scene = write_posed(root / "data" / "scene", make_scene(6), "llff")
     with contextlib.redirect_stderr(io.StringIO()) as err, contextlib.redirect_stdout(io.StringIO()):
         assert main([str(a) for a in ["train", scene, "--out", root / "run", *TINY, "-q"]]) == 0, err.getvalue()
-        assert main([str(a) for a in ["plan", scene, "--out", root / "plan.json", "--n-mid", "1", "--n-extra",
-                                      "0", "-q"]]) == 0, err.getvalue()
+        assert (
+            main([str(a) for a in ["plan", scene, "--out", root / "plan.json", "--n-mid", "1", "--n-extra", "0", "-q"]])
+            == 0
+        ), err.getvalue()
     return {"root": root, "scene": scene, "run": root / "run", "plan": root / "plan.json"}
 
 
@@ -80,18 +82,69 @@ def call(sb: dict, argv: list, out: Path, what: str) -> int:
 
 # ---- mutations ----------------------------------------------------------------------------------------------
 
+
 def hostile_name(rng: random.Random, root: Path) -> object:
-    fixed = ["../../escaped.png", "../escaped.png", "..", ".", "", " ", str(root / "escaped.png"), "/escaped.png",
-             "a/b.png", "a\\b.png", "C:escaped.png", "x\x00.png", "x\n.png", "x" * 300 + ".png", "00.png",
-             "00.PNG", "novel.txt", "novel", ".png", "ok.png", "é.png", 7, 3.5, None, True, ["a.png"], {"a": 1}]
+    fixed = [
+        "../../escaped.png",
+        "../escaped.png",
+        "..",
+        ".",
+        "",
+        " ",
+        str(root / "escaped.png"),
+        "/escaped.png",
+        "a/b.png",
+        "a\\b.png",
+        "C:escaped.png",
+        "x\x00.png",
+        "x\n.png",
+        "x" * 300 + ".png",
+        "00.png",
+        "00.PNG",
+        "novel.txt",
+        "novel",
+        ".png",
+        "ok.png",
+        "é.png",
+        7,
+        3.5,
+        None,
+        True,
+        ["a.png"],
+        {"a": 1},
+    ]
     if rng.random() < 0.7:
         return rng.choice(fixed)
     return "".join(rng.choice("ab./\\.._-A\x01 ") for _ in range(rng.randint(1, 12))) + rng.choice([".png", ""])
 
 
 def odd_value(rng: random.Random) -> object:
-    return rng.choice([float("nan"), float("inf"), -float("inf"), 0, -1, 1e308, -1e308, 1e-320, 10 ** 400,
-                       2 ** 63, -(2 ** 70), "3", "x", True, False, None, [], {}, [1, 2], [[1]], 0.5, 1e6])
+    return rng.choice(
+        [
+            float("nan"),
+            float("inf"),
+            -float("inf"),
+            0,
+            -1,
+            1e308,
+            -1e308,
+            1e-320,
+            10**400,
+            2**63,
+            -(2**70),
+            "3",
+            "x",
+            True,
+            False,
+            None,
+            [],
+            {},
+            [1, 2],
+            [[1]],
+            0.5,
+            1e6,
+        ]
+    )
 
 
 def mutate_json(rng: random.Random, doc: object, root: Path, names: tuple[str, ...]) -> object:
@@ -104,6 +157,7 @@ def mutate_json(rng: random.Random, doc: object, root: Path, names: tuple[str, .
         for k, v in items:
             paths.append((x, k))
             walk(v)
+
     walk(doc)
     if not paths or rng.random() < 0.03:
         return rng.choice([[], {}, "plan", 3, None, [doc]])
@@ -151,8 +205,14 @@ def test_mutated_plans_through_synthesize(sandbox):
             doc = mutate_json(rng, doc, sandbox["root"], ("name",))
         plan = plans / f"plan{k}.json"
         plan.write_bytes(dumps(rng, doc))
-        codes.append(call(sandbox, ["synthesize", sandbox["run"], "--plan", plan, "--out", out], out,
-                          f"plan mutation {k}: {plan.read_bytes()[:400]!r}"))
+        codes.append(
+            call(
+                sandbox,
+                ["synthesize", sandbox["run"], "--plan", plan, "--out", out],
+                out,
+                f"plan mutation {k}: {plan.read_bytes()[:400]!r}",
+            )
+        )
     assert 0.1 < codes.count(0) / len(codes) < 0.9, codes  # both kinds of outcome, in numbers
     assert not list(sandbox["root"].rglob("escaped*"))
 
@@ -217,7 +277,11 @@ def test_mutated_pose_files_through_info_plan_and_synthesize(sandbox):
         call(sandbox, ["info", scene], out, what)
         call(sandbox, ["plan", scene, "--out", out], out, what)
         if k % 8 == 0:
-            call(sandbox, ["synthesize", sandbox["run"], "--plan", sandbox["plan"], "--scene", scene, "--out", out],
-                 out, what)
+            call(
+                sandbox,
+                ["synthesize", sandbox["run"], "--plan", sandbox["plan"], "--scene", scene, "--out", out],
+                out,
+                what,
+            )
         shutil.rmtree(scene)
     assert not list(sandbox["root"].rglob("escaped*"))

@@ -10,18 +10,30 @@ from pathlib import Path
 
 import pytest
 
-from sparself.errors import InputError
-from sparself.names import check_names, name_problem
-from test_bad_input import make_scene, need, one_error, run, write_posed
-from test_output_safety import TINY, tree
+from sparself.core.errors import InputError
+from sparself.core.names import check_names, name_problem
+from test_bad_input import make_scene, one_error, run, write_posed
+from test_output_safety import tree
 
 
-@pytest.mark.parametrize("name, problem", [
-    ("../../x.png", "contains '..'"), ("..", "contains '..'"), ("/tmp/x.png", "absolute path"),
-    ("C:x.png", "absolute path"), ("a\\b.png", "separator '\\'"), ("a/b.png", "separator '/'"),
-    ("", "empty"), ("  ", "empty"), ("a\x00.png", "control character"), ("x" * 300 + ".png", "255 bytes"),
-    (5, "is a int"), (None, "is a NoneType"), ("./a.png", "contains a path separator"),
-])
+@pytest.mark.parametrize(
+    "name, problem",
+    [
+        ("../../x.png", "contains '..'"),
+        ("..", "contains '..'"),
+        ("/tmp/x.png", "absolute path"),
+        ("C:x.png", "absolute path"),
+        ("a\\b.png", "separator '\\'"),
+        ("a/b.png", "separator '/'"),
+        ("", "empty"),
+        ("  ", "empty"),
+        ("a\x00.png", "control character"),
+        ("x" * 300 + ".png", "255 bytes"),
+        (5, "is a int"),
+        (None, "is a NoneType"),
+        ("./a.png", "contains a path separator"),
+    ],
+)
 def test_bad_names(name, problem):
     assert problem in name_problem(name)
 
@@ -48,6 +60,7 @@ def test_collisions_after_case_folding():
 
 # ---- through the CLI ----------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> dict:
     from test_output_safety import trained as make  # the same tiny run
@@ -60,14 +73,17 @@ def _synth(capsys, trained, plan: Path, out: Path, *extra) -> tuple[int, str]:
     return code, err
 
 
-@pytest.mark.parametrize("name, needles", [
-    ("../../escaped.png", ("frame name '../../escaped.png' contains '..'",)),
-    ("/tmp/sparself_escaped.png", ("is an absolute path",)),
-    ("sub/x.png", ("contains a path separator '/'",)),
-    ("UPPER", ("differ only in case",)),  # frame 0's name in capitals
-    ("00.PNG", ("frame name '00.PNG' is the name of a view of the scene ('00.png')",)),
-    ("notes.txt", ("does not end with an image extension",)),
-])
+@pytest.mark.parametrize(
+    "name, needles",
+    [
+        ("../../escaped.png", ("frame name '../../escaped.png' contains '..'",)),
+        ("/tmp/sparself_escaped.png", ("is an absolute path",)),
+        ("sub/x.png", ("contains a path separator '/'",)),
+        ("UPPER", ("differ only in case",)),  # frame 0's name in capitals
+        ("00.PNG", ("frame name '00.PNG' is the name of a view of the scene ('00.png')",)),
+        ("notes.txt", ("does not end with an image extension",)),
+    ],
+)
 def test_plan_frame_names_are_checked_before_anything_is_written(trained, tmp_path, capsys, name, needles):
     doc = json.loads(trained["plan"].read_text())
     doc["frames"][1]["name"] = doc["frames"][0]["name"].upper() if name == "UPPER" else name
@@ -77,15 +93,16 @@ def test_plan_frame_names_are_checked_before_anything_is_written(trained, tmp_pa
     out = tmp_path / "a" / "b" / "out"
     before, tmp_before = tree(trained["root"]), tree(tmp_path)
     code, err = _synth(capsys, trained, plan, out)
-    one_error(code, err, "synthesize", "bad.json", "frame name", *needles,
-              case=f"plan frame name {name!r} [synthesize]")
+    one_error(
+        code, err, "synthesize", "bad.json", "frame name", *needles, case=f"plan frame name {name!r} [synthesize]"
+    )
     assert tree(trained["root"]) == before and tree(tmp_path) == tmp_before
     assert not Path("/tmp/sparself_escaped.png").exists()
 
 
 def _colmap_text(folder: Path, rename: dict) -> Path:
-    from sparself.io import read_scene
-    from sparself.io.colmap import write_colmap
+    from sparself.capture.io import read_scene
+    from sparself.capture.io.colmap import write_colmap
 
     model = folder / "sparse" / "0"
     write_colmap(read_scene(folder), model, text=True)
@@ -99,15 +116,18 @@ def _colmap_text(folder: Path, rename: dict) -> Path:
     return txt
 
 
-@pytest.mark.parametrize("fmt, bad, needles", [
-    ("colmap", "../../x.png", ("sparse/0", "image name '../../x.png' contains '..'")),
-    ("colmap", "/etc/x.png", ("image name '/etc/x.png' is an absolute path",)),
-    ("colmap", "01.PNG", ("image name", "differ only in case")),
-    ("nerfstudio", "other/01.PNG", ("transforms.json", "image name", "differ only in case")),
-    ("nerfstudio", "other/01.png", ("transforms.json", "image name '01.png' appears twice")),
-    ("llff", "01.PNG", ("images", "differ only in case")),
-    ("middlebury", "../01.png", ("scene_par.txt", "image name '../01.png' contains '..'")),
-])
+@pytest.mark.parametrize(
+    "fmt, bad, needles",
+    [
+        ("colmap", "../../x.png", ("sparse/0", "image name '../../x.png' contains '..'")),
+        ("colmap", "/etc/x.png", ("image name '/etc/x.png' is an absolute path",)),
+        ("colmap", "01.PNG", ("image name", "differ only in case")),
+        ("nerfstudio", "other/01.PNG", ("transforms.json", "image name", "differ only in case")),
+        ("nerfstudio", "other/01.png", ("transforms.json", "image name '01.png' appears twice")),
+        ("llff", "01.PNG", ("images", "differ only in case")),
+        ("middlebury", "../01.png", ("scene_par.txt", "image name '../01.png' contains '..'")),
+    ],
+)
 def test_image_names_in_pose_files(tmp_path, capsys, fmt, bad, needles):
     """Each reader refuses such names as it reads them, so every command does (shown with `info`)."""
     scene = write_posed(tmp_path / "data" / "scene", make_scene(6), "colmap" if fmt == "colmap" else fmt)

@@ -8,17 +8,18 @@ import numpy as np
 import pytest
 import torch
 
-from sparself.geometry import Pose
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.geometry import Pose
 from sparself.recon.nerf import NerfConfig, fit, fit_device, pixel_rays
-from sparself.scene import Camera, Frame, Scene
 
 DEPTH = 4.0
 
 
 def _texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Smooth colour pattern on the plane z = DEPTH, (..., 3) in [0.1, 0.9]."""
-    return np.stack([0.5 + 0.4 * np.sin(2.2 * x + 0.3), 0.5 + 0.4 * np.cos(1.7 * y - 0.5),
-                     0.5 + 0.4 * np.sin(1.3 * (x + y))], -1).astype(np.float32)
+    return np.stack(
+        [0.5 + 0.4 * np.sin(2.2 * x + 0.3), 0.5 + 0.4 * np.cos(1.7 * y - 0.5), 0.5 + 0.4 * np.sin(1.3 * (x + y))], -1
+    ).astype(np.float32)
 
 
 def _render_plane(pose: Pose, cam: Camera) -> np.ndarray:
@@ -31,7 +32,9 @@ def _render_plane(pose: Pose, cam: Camera) -> np.ndarray:
 def _plane_scene(n_side: int = 3, size: int = 24) -> tuple[Scene, list[Pose]]:
     cam = Camera.pinhole(size, size, fx=size * 0.9)
     frames = []
-    for k, (x, y) in enumerate([(x, y) for y in np.linspace(-0.4, 0.4, n_side) for x in np.linspace(-0.4, 0.4, n_side)]):
+    for k, (x, y) in enumerate(
+        [(x, y) for y in np.linspace(-0.4, 0.4, n_side) for x in np.linspace(-0.4, 0.4, n_side)]
+    ):
         pose = Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([x, y, 0.0]))
         frames.append(Frame(f"v{k}", pose, 1, float(k), image=_render_plane(pose, cam)))
     held = [Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([0.2, -0.2, 0.0]))]
@@ -51,8 +54,12 @@ def test_nerf_fits_plane_and_beats_mean_colour_on_held_out_view():
     scene, held = _plane_scene()
     cam = scene.cameras[1]
     t0 = time.process_time()  # CPU time: wall time on a shared machine measures the neighbours
-    r = fit(scene, NerfConfig(steps=250, batch_rays=512, n_samples=24, levels=(8, 16, 32), hidden=32,
-                              seed=0, progress=False, threads=1))
+    r = fit(
+        scene,
+        NerfConfig(
+            steps=250, batch_rays=512, n_samples=24, levels=(8, 16, 32), hidden=32, seed=0, progress=False, threads=1
+        ),
+    )
     img = r.render(held[0], cam)
     elapsed = time.process_time() - t0
     gt = _render_plane(held[0], cam)
@@ -74,7 +81,7 @@ def test_nerf_is_deterministic_for_a_seed():
 
 
 def test_gsplat_says_clearly_what_it_needs_when_it_cannot_run():
-    from sparself.errors import SparselfError
+    from sparself.core.errors import SparselfError
     from sparself.recon import gsplat as gs
 
     ok, why = gs.available()
@@ -87,7 +94,7 @@ def test_gsplat_says_clearly_what_it_needs_when_it_cannot_run():
 
 
 def test_nerf_rejects_unknown_settings_and_empty_scenes():
-    from sparself.errors import ConfigError, InputError
+    from sparself.core.errors import ConfigError, InputError
 
     scene, _ = _plane_scene(n_side=2, size=8)
     with pytest.raises(ConfigError, match="stepz"):

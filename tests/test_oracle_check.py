@@ -5,14 +5,19 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from sparself.evaluate import NETWORK, oracle_share
-from sparself.report import write_report
+from sparself.evaluation.results import NETWORK
+from sparself.evaluation.protocol import oracle_share
+from sparself.evaluation.report import write_report
 
 
 def _entry(base: float, net: float, oracle: float) -> dict:
     s = lambda v: {"summary": {"psnr": {"mean": v, "std": 0.0}, "ssim": {"mean": None}, "lpips": {"mean": None}}}  # noqa: E731
-    return {"status": "ok", "base": {"views": 25, **s(base)}, NETWORK: {"views": 35, **s(net)},
-            "oracle": {"views": 35, **s(oracle)}}
+    return {
+        "status": "ok",
+        "base": {"views": 25, **s(base)},
+        NETWORK: {"views": 35, **s(net)},
+        "oracle": {"views": 35, **s(oracle)},
+    }
 
 
 def test_share_only_when_the_oracle_beats_n():
@@ -34,9 +39,19 @@ def test_report_says_the_instrument_failed_instead_of_a_share(tmp_path):
     for e in (good, bad):
         oracle_share(e)
     bad["backend"] = "cpu: test"
-    scenes = [{"name": n, "status": "ok", "notes": [], "timings": {}, "view_synthesis": {}, "midpoints": {},
-               "protocol": {"rule": "dense", "held_out": [], "scored": [], "inputs": []},
-               "densification": {"3dgs": e}} for n, e in (("good", good), ("bad", bad))]
+    scenes = [
+        {
+            "name": n,
+            "status": "ok",
+            "notes": [],
+            "timings": {},
+            "view_synthesis": {},
+            "midpoints": {},
+            "protocol": {"rule": "dense", "held_out": [], "scored": [], "inputs": []},
+            "densification": {"3dgs": e},
+        }
+        for n, e in (("good", good), ("bad", bad))
+    ]
     write_report({"settings": {"lpips_status": "unavailable"}, "not_run": {}, "scenes": scenes}, tmp_path)
     md = (tmp_path / "report.md").read_text()
     good_rows = [line for line in md.splitlines() if line.startswith("| good (25→35)")]

@@ -13,12 +13,26 @@ from pathlib import Path
 
 import pytest
 
-from sparself.outputs import MARKER
+from sparself.core.outputs import MARKER
 from test_bad_input import make_scene, need, one_error, run, write_photos, write_posed
 
-TINY = ["--epochs", "1", "--size", "32", "--crop", "16", "--backbone-size", "32", "--device", "cpu",
-        "--batch-size", "6", "--weights", "none"]
-TINY_DENSIFY = TINY[:1 + 1] + TINY[4:]  # no --size: densify trains at the photos' size
+TINY = [
+    "--epochs",
+    "1",
+    "--size",
+    "32",
+    "--crop",
+    "16",
+    "--backbone-size",
+    "32",
+    "--device",
+    "cpu",
+    "--batch-size",
+    "6",
+    "--weights",
+    "none",
+]
+TINY_DENSIFY = TINY[: 1 + 1] + TINY[4:]  # no --size: densify trains at the photos' size
 
 
 def tree(root: Path) -> dict:
@@ -76,8 +90,13 @@ def root(tmp_path) -> Path:
 
 
 def _how(relation: str) -> str:
-    return {"same": " is the ", "parent": " contains the ", "child": " lies inside the ", "dot": " the ",
-            "symlink": " is the "}[relation]
+    return {
+        "same": " is the ",
+        "parent": " contains the ",
+        "child": " lies inside the ",
+        "dot": " the ",
+        "symlink": " is the ",
+    }[relation]
 
 
 @pytest.mark.parametrize("relation", RELATIONS)
@@ -87,8 +106,17 @@ def test_photo_folder_is_never_the_output(root, capsys, monkeypatch, cmd, relati
     photos = write_photos(root / "photos", 3)[0].parent
     out = out_for(relation, photos, root, monkeypatch)
     extra = ["--link-images"] if cmd == "poses" else TINY_DENSIFY
-    refused(capsys, root, cmd, [cmd, photos, "--out", out, *extra], f"output {out}", _how(relation),
-            "photos", "choose an --out outside", case=f"--out {relation} photo folder [{cmd}]")
+    refused(
+        capsys,
+        root,
+        cmd,
+        [cmd, photos, "--out", out, *extra],
+        f"output {out}",
+        _how(relation),
+        "photos",
+        "choose an --out outside",
+        case=f"--out {relation} photo folder [{cmd}]",
+    )
 
 
 @pytest.mark.parametrize("relation", RELATIONS)
@@ -98,8 +126,16 @@ def test_scene_folder_is_never_the_output(root, capsys, monkeypatch, cmd, relati
     scene = write_posed(root / "scene", make_scene(6), "llff")
     out = out_for(relation, scene, root, monkeypatch, "plan.json" if cmd == "plan" else "out")
     extra = {"plan": [], "train": TINY, "densify": TINY_DENSIFY, "evaluate": ["--quick", "--recon", "mpi"]}[cmd]
-    refused(capsys, root, cmd, [cmd, scene, "--out", out, *extra], f"output {out}", _how(relation), "scene",
-            case=f"--out {relation} scene folder [{cmd}]")
+    refused(
+        capsys,
+        root,
+        cmd,
+        [cmd, scene, "--out", out, *extra],
+        f"output {out}",
+        _how(relation),
+        "scene",
+        case=f"--out {relation} scene folder [{cmd}]",
+    )
 
 
 @pytest.mark.parametrize("relation", ["same", "parent"])
@@ -108,14 +144,30 @@ def test_pose_file_is_never_the_output(root, capsys, monkeypatch, relation):
     need("train")
     npy = write_posed(root / "scene", make_scene(6), "llff") / "poses_bounds.npy"
     out = out_for(relation, npy, root, monkeypatch)
-    refused(capsys, root, "train", ["train", npy, "--out", out, *TINY], f"output {out}", "poses_bounds.npy",
-            case=f"--out {relation} pose file [train]")
+    refused(
+        capsys,
+        root,
+        "train",
+        ["train", npy, "--out", out, *TINY],
+        f"output {out}",
+        "poses_bounds.npy",
+        case=f"--out {relation} pose file [train]",
+    )
 
 
 def test_plot_and_plan_file_are_different_outputs(root, capsys):
     scene = write_posed(root / "scene", make_scene(6), "llff")
-    refused(capsys, root, "plan", ["plan", scene, "--out", root / "p.png", "--plot", root / "p.png"],
-            "--plot", "--out", "p.png", "are the same file", case="--plot same as --out [plan]")
+    refused(
+        capsys,
+        root,
+        "plan",
+        ["plan", scene, "--out", root / "p.png", "--plot", root / "p.png"],
+        "--plot",
+        "--out",
+        "p.png",
+        "are the same file",
+        case="--plot same as --out [plan]",
+    )
 
 
 def test_manifest_is_never_the_output(root, capsys):
@@ -123,9 +175,14 @@ def test_manifest_is_never_the_output(root, capsys):
     scene = write_posed(root / "scene", make_scene(6), "llff")
     (root / "lists").mkdir()
     (root / "lists" / "scenes.txt").write_text(f"{scene}\n")
-    refused(capsys, root, "evaluate", ["evaluate", "--manifest", root / "lists" / "scenes.txt", "--out",
-                                       root / "lists", "--quick"], "contains the manifest",
-            case="--out holds the manifest [evaluate]")
+    refused(
+        capsys,
+        root,
+        "evaluate",
+        ["evaluate", "--manifest", root / "lists" / "scenes.txt", "--out", root / "lists", "--quick"],
+        "contains the manifest",
+        case="--out holds the manifest [evaluate]",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -139,18 +196,20 @@ def trained(tmp_path_factory) -> dict:
 
     base = tmp_path_factory.mktemp("synth")
     scene = write_posed(base / "data" / "scene", make_scene(6), "llff")  # each in a folder of its own, so
-    run_dir, plan = base / "runs" / "run", base / "plans" / "plan.json"     # that the parent holds one input
+    run_dir, plan = base / "runs" / "run", base / "plans" / "plan.json"  # that the parent holds one input
     plan.parent.mkdir()
     with contextlib.redirect_stderr(io.StringIO()) as err:
         assert main([str(a) for a in ["train", scene, "--out", run_dir, *TINY, "-q"]]) == 0, err.getvalue()
-        assert main([str(a) for a in ["plan", scene, "--out", plan, "--n-mid", "2", "--n-extra", "0",
-                                      "-q"]]) == 0, err.getvalue()
+        assert main([str(a) for a in ["plan", scene, "--out", plan, "--n-mid", "2", "--n-extra", "0", "-q"]]) == 0, (
+            err.getvalue()
+        )
     assert (run_dir / MARKER).is_file()  # a run is a folder sparself wrote
     return {"root": base, "scene": scene, "run": run_dir, "plan": plan}
 
 
-@pytest.mark.parametrize("what, relation", [(w, r) for w in ("run", "scene") for r in RELATIONS]
-                         + [("plan", "same"), ("plan", "parent")])
+@pytest.mark.parametrize(
+    "what, relation", [(w, r) for w in ("run", "scene") for r in RELATIONS] + [("plan", "same"), ("plan", "parent")]
+)
 def test_synthesize_never_writes_over_its_run_plan_or_scene(trained, capsys, monkeypatch, what, relation):
     """The run folder, the plan file and the run's source scene (found through the run, not given)."""
     root = trained["root"]
@@ -158,8 +217,15 @@ def test_synthesize_never_writes_over_its_run_plan_or_scene(trained, capsys, mon
     try:
         out = out_for(relation, trained[what], root, monkeypatch)
         name = {"run": "run", "scene": "scene", "plan": "plan.json"}[what]
-        refused(capsys, root, "synthesize", ["synthesize", trained["run"], "--plan", trained["plan"], "--out", out],
-                f"output {out}", name, case=f"--out {relation} {what} [synthesize]")
+        refused(
+            capsys,
+            root,
+            "synthesize",
+            ["synthesize", trained["run"], "--plan", trained["plan"], "--out", out],
+            f"output {out}",
+            name,
+            case=f"--out {relation} {what} [synthesize]",
+        )
     finally:
         link.unlink(missing_ok=True)
 
@@ -168,14 +234,25 @@ def test_synthesize_never_writes_over_its_run_plan_or_scene(trained, capsys, mon
 def test_overwrite_replaces_only_what_sparself_wrote(root, capsys, cmd):
     """A non-empty folder without sparself's marker is never replaced, even with --overwrite."""
     need(cmd)
-    inp = write_photos(root / "photos", 3)[0].parent if cmd in ("poses", "densify") else \
-        write_posed(root / "scene", make_scene(6), "llff")
+    inp = (
+        write_photos(root / "photos", 3)[0].parent
+        if cmd in ("poses", "densify")
+        else write_posed(root / "scene", make_scene(6), "llff")
+    )
     mine = root / "my_things"
     mine.mkdir()
     (mine / "thesis.tex").write_text("the only copy")
     extra = {"poses": [], "train": TINY, "densify": TINY_DENSIFY, "evaluate": ["--quick", "--recon", "mpi"]}[cmd]
-    refused(capsys, root, cmd, [cmd, inp, "--out", mine, *extra], str(mine), "not a folder sparself wrote",
-            "delete it yourself", case=f"--overwrite on a folder sparself did not write [{cmd}]")
+    refused(
+        capsys,
+        root,
+        cmd,
+        [cmd, inp, "--out", mine, *extra],
+        str(mine),
+        "not a folder sparself wrote",
+        "delete it yourself",
+        case=f"--overwrite on a folder sparself did not write [{cmd}]",
+    )
 
 
 def test_overwrite_replaces_a_folder_sparself_wrote_or_an_empty_one(root, capsys):
@@ -193,7 +270,7 @@ def test_synthesize_into_a_mount_point(trained, tmp_path, capsys, monkeypatch):
     dense scene is written inside it, entry by entry, with no traceback and nothing left beside it."""
     import errno
 
-    from sparself.io import read_scene
+    from sparself.capture.io import read_scene
 
     mnt = tmp_path / "mnt"
     mnt.mkdir()
@@ -222,10 +299,18 @@ def test_overwrite_that_cannot_delete_the_old_output_fails_up_front(trained, tmp
     real_access = os.access
     monkeypatch.setattr(os, "access", lambda p, mode, **kw: Path(p) != out / "images" and real_access(p, mode, **kw))
     before = tree(tmp_path)
-    code, _, err = run(capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite",
-                       "-q")
-    one_error(code, err, "synthesize", str(out), "--overwrite cannot delete it", f"{out / 'images'}",
-              case="--overwrite on a folder that cannot be deleted [synthesize]")
+    code, _, err = run(
+        capsys, "synthesize", trained["run"], "--plan", trained["plan"], "--out", out, "--overwrite", "-q"
+    )
+    one_error(
+        code,
+        err,
+        "synthesize",
+        str(out),
+        "--overwrite cannot delete it",
+        f"{out / 'images'}",
+        case="--overwrite on a folder that cannot be deleted [synthesize]",
+    )
     assert tree(tmp_path) == before
 
 
@@ -234,7 +319,7 @@ def test_train_overwrite_drops_the_old_checkpoint(trained, tmp_path, capsys, mon
     gone (a later --resume must not continue it under the new config)."""
     import shutil
 
-    import sparself.train
+    import sparself.synthesis.train
 
     run_dir = tmp_path / "run"
     shutil.copytree(trained["run"], run_dir)
@@ -243,13 +328,15 @@ def test_train_overwrite_drops_the_old_checkpoint(trained, tmp_path, capsys, mon
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sparself.train, "_fit", interrupted)
+    monkeypatch.setattr(sparself.synthesis.train, "_fit", interrupted)
     argv = ["train", str(trained["scene"]), "--out", str(run_dir), *TINY, "--decoder", "fc", "--overwrite"]
     code, _, err = run(capsys, *argv)
     assert code == 130 and not (run_dir / "checkpoint.pt").exists(), err
     again = " ".join(a for a in argv if a != "--overwrite")
-    assert f"sparself train: interrupted; stopped before the first checkpoint; start again with: sparself {again} " \
-           "--resume" in err, err
+    assert (
+        f"sparself train: interrupted; stopped before the first checkpoint; start again with: sparself {again} "
+        "--resume" in err
+    ), err
 
 
 @pytest.mark.parametrize("relation", ["same", "parent", "child"])
@@ -260,7 +347,23 @@ def test_batch_never_writes_over_a_capture_or_its_manifest(root, capsys, monkeyp
     manifest = root / "lists" / "m.txt"
     manifest.write_text(f"{scene}\n")
     out = out_for(relation, scene, root, monkeypatch)
-    refused(capsys, root, "batch", ["batch", "densify", manifest, "--out", out, "--local"], f"output {out}",
-            _how(relation), "capture", case=f"--out {relation} capture [batch]", overwrite=False)
-    refused(capsys, root, "batch", ["batch", "densify", manifest, "--out", manifest.parent, "--local"],
-            "contains the manifest", case="--out holds the manifest [batch]", overwrite=False)
+    refused(
+        capsys,
+        root,
+        "batch",
+        ["batch", "densify", manifest, "--out", out, "--local"],
+        f"output {out}",
+        _how(relation),
+        "capture",
+        case=f"--out {relation} capture [batch]",
+        overwrite=False,
+    )
+    refused(
+        capsys,
+        root,
+        "batch",
+        ["batch", "densify", manifest, "--out", manifest.parent, "--local"],
+        "contains the manifest",
+        case="--out holds the manifest [batch]",
+        overwrite=False,
+    )

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from sparself.errors import OutputError
-from sparself.outputs import MARKER, atomic_dir, atomic_file
+from sparself.core.errors import OutputError
+from sparself.core.outputs import MARKER, atomic_dir, atomic_file
 
 
 def test_atomic_dir_success_and_failure(tmp_path):

@@ -7,19 +7,25 @@ import numpy as np
 import pytest
 import torch
 
-from sparself.errors import ConfigError
-from sparself.geometry import Pose
-from sparself.scene import Frame
-from sparself.synthesize import synthesize
-from sparself.train import amp_dtype, load_run, train
-from planescene import SH as H, SW as W, small_plane_scene as plane_scene
+from planescene import SH as H
+from planescene import SW as W
+from planescene import small_plane_scene as plane_scene
+from sparself.capture.scene import Frame
+from sparself.core.errors import ConfigError
+from sparself.core.geometry import Pose
+from sparself.synthesis.run import load_run
+from sparself.synthesis.synthesize import synthesize
+from sparself.synthesis.train import train
+from sparself.synthesis.train_config import amp_dtype
 
 torch.set_num_threads(1)
 
 
 def _targets():
-    return [Frame(f"q{k}", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([x * 0.08, 0, 0])), 1, x)
-            for k, x in enumerate((0.5, 2.5, 3.25, 5.5, 6.2))]
+    return [
+        Frame(f"q{k}", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([x * 0.08, 0, 0])), 1, x)
+        for k, x in enumerate((0.5, 2.5, 3.25, 5.5, 6.2))
+    ]
 
 
 @pytest.fixture(scope="module")

@@ -11,18 +11,19 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from sparself.capture.images import list_images, load_image, needs_conversion
+from sparself.capture.io import read_scene, write_scene
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.capture.sfm import validate_images
 from sparself.cli import main
-from sparself.errors import InputError
-from sparself.geometry import Pose, rotmat_to_quat
-from sparself.io import read_scene, write_scene
-from sparself.scene import Camera, Frame, Scene, list_images, load_image, needs_conversion
-from sparself.sfm import validate_images
+from sparself.core.errors import InputError
+from sparself.core.geometry import Pose, rotmat_to_quat
 
 W, H = 64, 48
 
 
 def heif_readable() -> bool:
-    from sparself.scene import _heif_readable
+    from sparself.capture.images import heif_readable as _heif_readable
 
     return _heif_readable()
 
@@ -53,6 +54,7 @@ def one_error_line(err: str) -> str:
 
 
 # ---- hidden files, HEIC, DCIM ------------------------------------------------------------------------------
+
 
 def test_apple_double_and_hidden_files_are_skipped(tmp_path):
     for i in range(3):
@@ -118,6 +120,7 @@ def test_photos_only_in_dcim_subfolders_are_named(tmp_path, capsys):
 
 # ---- conversions: said once per folder and kind, with a count --------------------------------------------
 
+
 def test_conversions_are_said_once_with_a_count(tmp_path, caplog):
     want = {}
     for i in range(3):
@@ -128,8 +131,10 @@ def test_conversions_are_said_once_with_a_count(tmp_path, caplog):
         imgs = {n: load_image(tmp_path / n) for n in sorted(want)}
         again = [load_image(tmp_path / n) for n in sorted(want)]
     lines = [r.getMessage() for r in caplog.records]
-    assert lines == [f"{tmp_path}: 1 CMYK image(s) converted to RGB: c.jpg",
-                     f"{tmp_path}: 3 grayscale L image(s) converted to RGB: g0.png, g1.png, g2.png"], lines
+    assert lines == [
+        f"{tmp_path}: 1 CMYK image(s) converted to RGB: c.jpg",
+        f"{tmp_path}: 3 grayscale L image(s) converted to RGB: g0.png, g1.png, g2.png",
+    ], lines
     for n, rgb in want.items():
         assert imgs[n].shape == (H, W, 3) and np.array_equal(imgs[n], again[sorted(want).index(n)])
     # gray: the luma of the RGB it was made from, in all three channels
@@ -154,11 +159,17 @@ def test_written_scene_holds_upright_rgb_copies(tmp_path):
     and writes every other photo as upright 8-bit RGB at its camera's size with no EXIF rotation flag."""
     src = tmp_path / "src"
     src.mkdir()
-    up = {"0.png": photo(src / "0.png", 0), "1.png": photo(src / "1.png", 1, "L"),
-          "2.png": _rotated(src / "2.png", 2), "3.png": photo(src / "3.png", 3, "RGBA")}
+    up = {
+        "0.png": photo(src / "0.png", 0),
+        "1.png": photo(src / "1.png", 1, "L"),
+        "2.png": _rotated(src / "2.png", 2),
+        "3.png": photo(src / "3.png", 3, "RGBA"),
+    }
     Image.fromarray(up["0.png"][..., 0].astype(np.uint16) * 257).save(src / "4.png")
-    frames = [Frame(f"{i}.png", Pose(np.array([1.0, 0, 0, 0]), np.array([i * 0.1, 0, 0])), 1, float(i),
-                    path=src / f"{i}.png") for i in range(5)]
+    frames = [
+        Frame(f"{i}.png", Pose(np.array([1.0, 0, 0, 0]), np.array([i * 0.1, 0, 0])), 1, float(i), path=src / f"{i}.png")
+        for i in range(5)
+    ]
     out = tmp_path / "out"
     write_scene(Scene({1: Camera.pinhole(W, H, 50.0)}, frames), out)
     assert (out / "images" / "0.png").read_bytes() == (src / "0.png").read_bytes()
@@ -174,8 +185,8 @@ def test_written_scene_holds_upright_rgb_copies(tmp_path):
 
 # ---- the pose check: jumps between capture-order neighbours ----------------------------------------------
 
-from sparself.posecheck import ImageStats, camera_warnings, check_poses  # noqa: E402
-from sparself.sfm import exif_focal_px  # noqa: E402
+from sparself.capture.posecheck import ImageStats, camera_warnings, check_poses  # noqa: E402
+from sparself.capture.sfm import exif_focal_px  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -254,8 +265,15 @@ def test_photos_on_no_path_skip_the_jump_check():
 
     rng = np.random.default_rng(3)
     s = orbit(n=12)
-    frames = [Frame(f.name, Pose.from_center(rotmat_to_quat(cv2.Rodrigues(rng.normal(size=3) * 2)[0]),
-                                             rng.normal(size=3) * 3), 1, f.index) for f in s.frames]
+    frames = [
+        Frame(
+            f.name,
+            Pose.from_center(rotmat_to_quat(cv2.Rodrigues(rng.normal(size=3) * 2)[0]), rng.normal(size=3) * 3),
+            1,
+            f.index,
+        )
+        for f in s.frames
+    ]
     c = check_poses(Scene(s.cameras, frames))
     assert c.suspects == [] and "jump check was skipped" in c.skipped, c
 
@@ -263,18 +281,20 @@ def test_photos_on_no_path_skip_the_jump_check():
 def test_weak_photos_from_model_statistics():
     s = orbit(n=10)
     stats = [ImageStats(f.name, 500, 4.0, 0.6) for f in s.frames]
-    stats[3] = ImageStats("03.png", 40, 2.1, 0.7)      # its points are seen by it and one other photo
-    stats[6] = ImageStats("06.png", 400, 3.9, 4.5)     # fits badly
+    stats[3] = ImageStats("03.png", 40, 2.1, 0.7)  # its points are seen by it and one other photo
+    stats[6] = ImageStats("06.png", 400, 3.9, 4.5)  # fits badly
     c = check_poses(s, stats)
     assert c.names == ["03.png", "06.png"]
     assert c.suspects[0].reasons == ["short tracks: its points are seen by 2.1 photos (median 4.0)"]
     assert c.suspects[1].reasons == ["reprojection error 4.50 px (median 0.60)"]
 
 
-@pytest.mark.parametrize("scene", ["llff_bird", "llff_bird25", "middlebury_templeRing", "middlebury_templeSparseRing",
-                                   "middlebury_dinoSparseRing"])
+@pytest.mark.parametrize(
+    "scene",
+    ["llff_bird", "llff_bird25", "middlebury_templeRing", "middlebury_templeSparseRing", "middlebury_dinoSparseRing"],
+)
 def test_published_poses_raise_no_false_alarm(scene):
-    from sparself.io import read_scene
+    from sparself.capture.io import read_scene
 
     src = DATA / scene.replace("25", "")
     if not src.is_dir():
@@ -290,13 +310,15 @@ def test_published_poses_raise_no_false_alarm(scene):
 
 # ---- the camera ----------------------------------------------------------------------------------------
 
+
 def test_implausible_camera_warns_with_the_numbers():
     # the issue's case: 8 small photos gave fx=2826, a 2.3 degree field of view (truly about 33)
     (w,) = camera_warnings(Camera("SIMPLE_RADIAL", 113, 85, (2826.0, 56.5, 42.5, 0.0)))
     assert "fx=2826 px for 113x85 photos is a 2.3 x 1.7 deg field of view" in w
-    assert camera_warnings(Camera.pinhole(1600, 1200, 1400.0)) == []           # 59 deg: a phone
-    assert "150" in " ".join(camera_warnings(Camera.pinhole(1600, 1200, 150.0))) or \
-        camera_warnings(Camera.pinhole(1600, 1200, 150.0))                      # 158 deg: fisheye-like
+    assert camera_warnings(Camera.pinhole(1600, 1200, 1400.0)) == []  # 59 deg: a phone
+    assert "150" in " ".join(camera_warnings(Camera.pinhole(1600, 1200, 150.0))) or camera_warnings(
+        Camera.pinhole(1600, 1200, 150.0)
+    )  # 158 deg: fisheye-like
     (w,) = camera_warnings(Camera.pinhole(1600, 1200, 3000.0), exif_focal_px=1300.0)
     assert "fx=3000 px (29.9 deg) is far from the photos' EXIF focal length 1300 px (63.2 deg)" in w
     assert camera_warnings(Camera.pinhole(1600, 1200, 1400.0), exif_focal_px=1300.0) == []
@@ -321,23 +343,27 @@ def test_exif_focal_length_in_px(tmp_path):
 
 
 def test_repair_outcome_is_one_plain_sentence():
-    from sparself.sfm import repair_outcome
+    from sparself.capture.sfm import repair_outcome
 
-    assert repair_outcome(["07.png"], [], ["a (3 pairs dropped): 24 registered, 0 suspect(s)"]) == \
-        "tried a (3 pairs dropped): 24 registered, 0 suspect(s). repaired: 07.png now agree with their neighbours"
+    assert (
+        repair_outcome(["07.png"], [], ["a (3 pairs dropped): 24 registered, 0 suspect(s)"])
+        == "tried a (3 pairs dropped): 24 registered, 0 suspect(s). repaired: 07.png now agree with their neighbours"
+    )
     assert repair_outcome(["07.png", "08.png"], ["08.png"], ["a", "b"]).endswith(
         "could not repair: 08.png still look wrong; check or remove these photos (or add photos between them and "
-        "their neighbours) and run again")
+        "their neighbours) and run again"
+    )
 
 
 def test_a_break_between_two_large_parts_is_reported_not_blamed():
     """Half the orbit turned: neither half is more right than the other, so no photo is named, but the
     summary (and sfm_report.json through SfmReport) says where the capture breaks."""
-    from sparself.sfm import SfmReport
+    from sparself.capture.sfm import SfmReport
 
     c = check_poses(flipped(orbit(), list(range(12, 24))))
     assert c.suspects == [] and len(c.breaks) == 1 and c.breaks[0].startswith("11.png -> 12.png: views 1"), c
     rep = SfmReport(24, [f"{i:02d}.png" for i in range(24)], [], 1, 100, 0.5, breaks=c.breaks)
-    assert rep.summary().startswith("registered 24 of 24 images; pose check: no suspect photos; the capture "
-                                    "breaks at 11.png -> 12.png: views 1")
+    assert rep.summary().startswith(
+        "registered 24 of 24 images; pose check: no suspect photos; the capture breaks at 11.png -> 12.png: views 1"
+    )
     assert rep.summary().endswith("check the photos there")

@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from sparself.errors import ConfigError, InputError
-from sparself.geometry import Pose, quat_angle, rotmat_to_quat
-from sparself.plan import (
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.errors import ConfigError, InputError
+from sparself.core.geometry import Pose, quat_angle, rotmat_to_quat
+from sparself.synthesis.plan import (
     PlanConfig,
     load_plan,
     nearest_neighbour_order,
@@ -18,7 +19,6 @@ from sparself.plan import (
     plan_sequence,
     save_plan,
 )
-from sparself.scene import Camera, Frame, Scene
 
 
 def look_at(center, target=(0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0)) -> Pose:
@@ -48,8 +48,10 @@ def on_path(p: Pose, a: Pose, b: Pose, t: float) -> bool:
     """p is the LERP (centre) / SLERP (rotation) of a, b at t."""
     c_ok = np.allclose(p.center, (1 - t) * a.center + t * b.center, atol=1e-9)
     theta = quat_angle(a.qvec, b.qvec)
-    r_ok = abs(quat_angle(a.qvec, p.qvec) - abs(t) * theta) < 1e-7 and \
-        abs(quat_angle(p.qvec, b.qvec) - abs(1 - t) * theta) < 1e-7
+    r_ok = (
+        abs(quat_angle(a.qvec, p.qvec) - abs(t) * theta) < 1e-7
+        and abs(quat_angle(p.qvec, b.qvec) - abs(1 - t) * theta) < 1e-7
+    )
     return c_ok and r_ok
 
 
@@ -116,8 +118,9 @@ def test_largest_gaps_option_picks_the_widest_gaps():
     scene = arc_scene(12)
     # widen gaps 2-3 and 8-9 by moving views 3.. and 9.. further around the arc
     ang = np.radians(np.r_[np.arange(3) * 10, 50 + np.arange(6) * 10, 140 + np.arange(3) * 10])
-    frames = [Frame(f"{i:03d}.jpg", look_at([4 * np.sin(a), 0, -4 * np.cos(a)]), 1, float(i))
-              for i, a in enumerate(ang)]
+    frames = [
+        Frame(f"{i:03d}.jpg", look_at([4 * np.sin(a), 0, -4 * np.cos(a)]), 1, float(i)) for i, a in enumerate(ang)
+    ]
     scene = Scene(cameras=scene.cameras, frames=frames)
     planned = plan_poses(scene, PlanConfig(n_mid=2, n_extra=0, gaps="largest"))
     assert [f.index for f in planned] == [2.5, 8.5]
@@ -126,8 +129,10 @@ def test_largest_gaps_option_picks_the_widest_gaps():
 def test_nearest_neighbour_order_recovers_a_shuffled_capture():
     scene = arc_scene(25)
     perm = np.random.default_rng(3).permutation(25)
-    shuffled = Scene(cameras=scene.cameras,
-                     frames=[Frame(f"img{k:03d}.jpg", scene.frames[i].pose, 1, float(k)) for k, i in enumerate(perm)])
+    shuffled = Scene(
+        cameras=scene.cameras,
+        frames=[Frame(f"img{k:03d}.jpg", scene.frames[i].pose, 1, float(k)) for k, i in enumerate(perm)],
+    )
     nn = nearest_neighbour_order(shuffled)
     recovered = perm[nn]
     assert list(recovered) in (list(range(25)), list(range(24, -1, -1)))
@@ -171,8 +176,9 @@ def test_identical_consecutive_poses_do_not_break():
 def test_500_views_plan_correctly():
     scene = arc_scene(500, sweep_deg=300)
     perm = np.random.default_rng(4).permutation(500)
-    shuffled = Scene(cameras=scene.cameras,
-                     frames=[Frame(f"{k}.jpg", scene.frames[i].pose, 1, float(k)) for k, i in enumerate(perm)])
+    shuffled = Scene(
+        cameras=scene.cameras, frames=[Frame(f"{k}.jpg", scene.frames[i].pose, 1, float(k)) for k, i in enumerate(perm)]
+    )
     planned = plan_poses(shuffled)
     assert len(planned) == 10
     # each midpoint sits between two views that are neighbours on the true arc
@@ -205,14 +211,24 @@ def test_save_load_round_trip(tmp_path):
     [
         ("{not json", "invalid JSON"),
         ('{"format": "something-else", "frames": []}', "not a sparself plan"),
-        ('{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [NaN, 0, 0, 0], "tvec": [0, 0, 0]}]}',
-         "non-finite|NaN"),
-        ('{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [1, 0, 0], "tvec": [0, 0, 0]}]}',
-         "qvec must have 4"),
-        ('{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [1, 0, 0, 0], "tvec": [0, 0, 0], '
-         '"camera_id": 7}]}', "camera 7"),
-        ('{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [1, 0, 0, 0], "tvec": [0, 0, 0], '
-         '"c2w": [[1, 0, 0, 5], [0, 1, 0, 0], [0, 0, 1, 0]]}]}', "disagrees"),
+        (
+            '{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [NaN, 0, 0, 0], "tvec": [0, 0, 0]}]}',
+            "non-finite|NaN",
+        ),
+        (
+            '{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [1, 0, 0], "tvec": [0, 0, 0]}]}',
+            "qvec must have 4",
+        ),
+        (
+            '{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [1, 0, 0, 0], "tvec": [0, 0, 0], '
+            '"camera_id": 7}]}',
+            "camera 7",
+        ),
+        (
+            '{"format": "sparself-plan", "frames": [{"index": 1, "qvec": [1, 0, 0, 0], "tvec": [0, 0, 0], '
+            '"c2w": [[1, 0, 0, 5], [0, 1, 0, 0], [0, 0, 1, 0]]}]}',
+            "disagrees",
+        ),
     ],
 )
 def test_bad_plan_files_raise_input_error_naming_the_file(tmp_path, text, match):

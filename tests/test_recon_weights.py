@@ -11,14 +11,18 @@ import pytest
 import torch
 
 from planescene import DEPTH, plane_scene
-from sparself import evaluate as ev
+from sparself.capture.scene import Frame
+from sparself.evaluation import evaluate as ev
+from sparself.evaluation import protocol
+from sparself.evaluation.config import EvalConfig
+from sparself.evaluation.results import MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED
+from sparself.evaluation.split import make_split
+from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_inputs
 from sparself.recon.gsplat import photometric_loss, ssim_torch
 from sparself.recon.nerf import fit as nerf_fit
 from sparself.recon.nerf import weighted_mse
 from sparself.recon.splat import SplatConfig
 from sparself.recon.splat import fit as splat_fit
-from sparself.results import MIN_ORACLE_GAIN_DB
-from sparself.scene import Frame
 
 NERF = dict(steps=12, batch_rays=128, n_samples=8, levels=(8, 16), hidden=16, progress=False, threads=1, seed=2)
 
@@ -27,8 +31,9 @@ def _with_synthetic(sc, image, weight, confidence=None):
     """sc + one synthetic frame between its first two cameras, carrying ``image``."""
     f0, f1 = sc.frames[0], sc.frames[1]
     pose = replace(f0.pose, tvec=(f0.pose.tvec + f1.pose.tvec) / 2)
-    new = Frame("syn", pose, 1, 0.5, image=image.astype(np.float32), synthetic=True, weight=weight,
-                confidence=confidence)
+    new = Frame(
+        "syn", pose, 1, 0.5, image=image.astype(np.float32), synthetic=True, weight=weight, confidence=confidence
+    )
     return replace(sc, frames=[f0, new] + sc.frames[1:])
 
 
@@ -62,10 +67,10 @@ def test_pixel_weight_is_frame_weight_times_confidence_at_the_camera_size():
     sc2 = _with_synthetic(sc, sc.frames[0].image, 0.5)
     np.testing.assert_array_equal(sc2.pixel_weight(1), np.full((h, w), 0.5, np.float32))
     conf = np.zeros((h // 2, w // 2), np.float32)
-    conf[:, w // 4:] = 1.0  # right half confident, at half resolution
+    conf[:, w // 4 :] = 1.0  # right half confident, at half resolution
     pw = _with_synthetic(sc, sc.frames[0].image, 0.5, conf).pixel_weight(1)
     assert pw.shape == (h, w)
-    assert np.allclose(pw[:, : w // 2 - 2], 0.0) and np.allclose(pw[:, w // 2 + 2:], 0.5)
+    assert np.allclose(pw[:, : w // 2 - 2], 0.0) and np.allclose(pw[:, w // 2 + 2 :], 0.5)
 
 
 def _nerf_render(sc):
@@ -95,11 +100,22 @@ def test_a_weight_0_synthetic_frame_does_not_move_the_fit(which):
     else:
         sc.points = np.stack([rng.uniform(-0.7, 0.9, 300), rng.uniform(-0.5, 0.5, 300), np.full(300, DEPTH)], 1)
         a, b, c = (replace(x, points=sc.points) for x in (a, b, c))
-        cfg = SplatConfig(steps=20, init_points=200, densify_every=5, densify_from=0.2, densify_until=0.8,
-                          max_gaussians=400, progress=False, seed=3, min_steps_per_view=0, threads=1)
+        cfg = SplatConfig(
+            steps=20,
+            init_points=200,
+            densify_every=5,
+            densify_from=0.2,
+            densify_until=0.8,
+            max_gaussians=400,
+            progress=False,
+            seed=3,
+            min_steps_per_view=0,
+            threads=1,
+        )
 
         def fit(s):
             return splat_fit(s, cfg).render(s.frames[0].pose, s.cameras[1])
+
     ra = fit(a)
     np.testing.assert_array_equal(ra, fit(b))  # its pixels do not matter
     assert not np.array_equal(ra, fit(c))  # and they would at weight 1
@@ -122,11 +138,11 @@ def test_choose_weight_picks_the_weight_that_renders_held_back_inputs_best():
     planned = [Frame(f"p{k}", sc.frames[k].pose, 1, k + 0.5) for k in range(3)]
     # synthesized views far off the inputs: the smallest weight fits the held-back inputs best
     bad = np.zeros((3,) + truth.shape, np.float32)
-    views = ev.ValidationViews(bad, None, [f.name for f in sc.without([2, 7]).frames])
-    choice = ev.choose_weight(sc, planned, views, (1.0, 0.25, 0.5), _Renderer)
+    views = ValidationViews(bad, None, [f.name for f in sc.without([2, 7]).frames])
+    choice = choose_weight(sc, planned, views, (1.0, 0.25, 0.5), _Renderer)
     assert choice["weight"] == 0.25 and choice["validation_views"] == ["src2", "src7"]
     assert choice["validation_psnr"]["0.25"] > choice["validation_psnr"]["0.5"] > choice["validation_psnr"]["1.0"]
-    assert ev.validation_inputs(25) == [2, 7, 12, 17, 22] and ev.validation_inputs(3) == [1]
+    assert validation_inputs(25) == [2, 7, 12, 17, 22] and validation_inputs(3) == [1]
 
 
 def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(tmp_path, monkeypatch):
@@ -135,26 +151,39 @@ def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(t
     from planescene import camera_line, plane_image
 
     scene = camera_line(np.linspace(0, 0.69, 24), (32, 24), 26.0, plane_image())
-    cfg = ev.EvalConfig(size=32, inputs=5, holdout_every=4, n_mid=2, n_extra=1, seeds=2, baselines=("blend",),
-                        densify_baselines=(), examples=0, lpips=False, progress=False, synthetic_weights=(0.5, 1.0))
-    held = {scene.frames[i].name: scene.frames[i].image for i in ev.make_split(24, cfg).eval}
+    cfg = EvalConfig(
+        size=32,
+        inputs=5,
+        holdout_every=4,
+        n_mid=2,
+        n_extra=1,
+        seeds=2,
+        baselines=("blend",),
+        densify_baselines=(),
+        examples=0,
+        lpips=False,
+        progress=False,
+        synthetic_weights=(0.5, 1.0),
+    )
+    held = {scene.frames[i].name: scene.frames[i].image for i in make_split(24, cfg).eval}
     scene = replace(scene, frames=[replace(f, image=None) if f.name in held else f for f in scene.frames])
-    real_load = ev._load_truth
-    monkeypatch.setattr(ev, "_load_truth", lambda f, size: held[f.name] if f.name in held else real_load(f, size))
+    real_load = protocol.load_truth
+    monkeypatch.setattr(protocol, "load_truth", lambda f, size: held[f.name] if f.name in held else real_load(f, size))
 
     def network(sc, seed):
-        from sparself.baselines import BASELINES
-        from sparself.synthesize import Synthesized
+        from sparself.synthesis.baselines import BASELINES
+        from sparself.synthesis.synthesize import Synthesized
 
         def synth(s, targets):
             imgs = BASELINES["blend"](s, targets)
             return Synthesized(imgs, np.full(imgs.shape[:3], 0.5, np.float32))
+
         return synth
 
     res = ev.evaluate([scene], tmp_path / "out", cfg, network=network, reconstructors={"mean": _Renderer})
     d = res["scenes"][0]["densification"]["mean"]
     assert d["status"] == "ok", d.get("error")
-    wd = d[ev.NETWORK_WEIGHTED]
+    wd = d[NETWORK_WEIGHTED]
     assert [p["seed"] for p in wd["per_seed"]] == [0, 1] and wd["views"] == 8
     sel = wd["per_seed"][0]["selection"]
     assert sel["weight"] in (0.5, 1.0) and set(sel["validation_psnr"]) == {"0.5", "1.0"} and sel["confidence"]
@@ -162,16 +191,16 @@ def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(t
     md = (tmp_path / "out" / "report.md").read_text()
     assert "N + sparself, weighted" in md and "synthetic-frame weight" in md
     assert "mean: N + sparself, weighted (confidence x the chosen synthetic-frame weight) vs unweighted:" in md
-    off = ev.evaluate([scene], tmp_path / "off", replace(cfg, weighted=False), network=network,
-                      reconstructors={"mean": _Renderer})
-    assert ev.NETWORK_WEIGHTED not in off["scenes"][0]["densification"]["mean"]
+    off = ev.evaluate(
+        [scene], tmp_path / "off", replace(cfg, weighted=False), network=network, reconstructors={"mean": _Renderer}
+    )
+    assert NETWORK_WEIGHTED not in off["scenes"][0]["densification"]["mean"]
 
 
 def test_mpi_blend_counts_each_pixel_by_its_reference_weight():
     """At the reference pose (identity warp), a per-pixel weight scales that MPI's colour and coverage."""
-    from sparself.recon.mpi import MpiConfig
+    from sparself.recon.mpi import MpiConfig, render_mpi
     from sparself.recon.mpi import fit as mpi_fit
-    from sparself.recon.mpi import render_mpi
 
     sc = plane_scene(xs=(0.0, 0.2, 0.4))
     cam, pose = sc.cameras[1], sc.frames[1].pose
@@ -181,35 +210,42 @@ def test_mpi_blend_counts_each_pixel_by_its_reference_weight():
     wmap[:, :, : cam.width // 2] = 0.25
     col_w, cov_w = render_mpi(replace(m, weight=wmap), pose, cam.K, (cam.height, cam.width))
     inner = (slice(None), slice(2, -2), slice(2, -2))  # away from the border's bilinear falloff
-    np.testing.assert_allclose((col_w / col.clamp_min(1e-9))[inner].numpy(),
-                               wmap.expand(3, -1, -1)[inner].numpy(), atol=1e-4)
+    np.testing.assert_allclose(
+        (col_w / col.clamp_min(1e-9))[inner].numpy(), wmap.expand(3, -1, -1)[inner].numpy(), atol=1e-4
+    )
     np.testing.assert_allclose((cov_w / cov.clamp_min(1e-9))[inner].numpy(), wmap[inner].numpy(), atol=1e-4)
     # through the renderer: a weighted frame's map reaches its MPI, and a uniform weight leaves the image as is
     h, w = cam.height, cam.width
     halves = replace(sc, frames=[replace(f, weight=0.5) for f in sc.frames])
     assert torch.equal(mpi_fit(halves, MpiConfig(num_planes=8)).mpi(1).weight, torch.full((1, h, w), 0.5))
-    np.testing.assert_allclose(mpi_fit(halves, MpiConfig(num_planes=8)).render(pose, cam),
-                               mpi_fit(sc, MpiConfig(num_planes=8)).render(pose, cam), atol=1e-5)
+    np.testing.assert_allclose(
+        mpi_fit(halves, MpiConfig(num_planes=8)).render(pose, cam),
+        mpi_fit(sc, MpiConfig(num_planes=8)).render(pose, cam),
+        atol=1e-5,
+    )
 
 
 def test_merge_seeds_keeps_each_units_weighted_fit_and_its_choice():
     from pathlib import Path
 
     from sparself.batch import merge_seeds
-    from sparself.results import FrameScore, ScoredSet, SeededSets
+    from sparself.evaluation.results import FrameScore, ScoredSet, SeededSets
 
     def unit(seed, psnr):
         def sets(p):
             return SeededSets([ScoredSet([FrameScore("f", 3, p, 0.5, None)], seed=seed, views=8)]).to_json()
+
         weighted = sets(psnr + 1)
         weighted["per_seed"][0]["selection"] = {"weight": 0.25 * (seed + 1), "chosen_on_seed": seed}
         one = ScoredSet([FrameScore("f", 3, 20.0, 0.5, None)], views=5).to_json()
         orc = ScoredSet([FrameScore("f", 3, 24.0, 0.5, None)], views=8).to_json()
-        return {"name": "cap", "densification": {"nerf": {"base": one, "oracle": orc, ev.NETWORK: sets(psnr),
-                                                          ev.NETWORK_WEIGHTED: weighted}}}
+        return {
+            "name": "cap",
+            "densification": {"nerf": {"base": one, "oracle": orc, NETWORK: sets(psnr), NETWORK_WEIGHTED: weighted}},
+        }
 
     m = merge_seeds([(1, unit(1, 22.0), Path("seed1")), (0, unit(0, 21.0), Path("seed0"))])["densification"]["nerf"]
-    wd = m[ev.NETWORK_WEIGHTED]
+    wd = m[NETWORK_WEIGHTED]
     assert [p["seed"] for p in wd["per_seed"]] == [0, 1]
     assert [p["selection"]["weight"] for p in wd["per_seed"]] == [0.25, 0.5]
     assert wd["summary"]["psnr"]["mean"] == pytest.approx(22.5) and wd["summary"]["psnr"]["n_seeds"] == 2
@@ -219,14 +255,14 @@ def test_merge_seeds_keeps_each_units_weighted_fit_and_its_choice():
 def test_weighting_options_on_the_command_line():
     import argparse
 
-    from sparself.errors import ConfigError
-    from sparself.options import add_options, from_args
+    from sparself.core.errors import ConfigError
+    from sparself.core.options import add_options, from_args
 
     p = argparse.ArgumentParser()
-    add_options(p, ev.EvalConfig, skip=("train",))
-    cfg = from_args(ev.EvalConfig, p.parse_args(["--synthetic-weights", "0.25,1"]), skip=("train",))
+    add_options(p, EvalConfig, skip=("train",))
+    cfg = from_args(EvalConfig, p.parse_args(["--synthetic-weights", "0.25,1"]), skip=("train",))
     assert cfg.synthetic_weights == (0.25, 1.0) and cfg.weighted
-    assert not from_args(ev.EvalConfig, p.parse_args(["--no-weighted"]), skip=("train",)).weighted
+    assert not from_args(EvalConfig, p.parse_args(["--no-weighted"]), skip=("train",)).weighted
     with pytest.raises(ConfigError, match="synthetic_weights"):
-        ev.EvalConfig(synthetic_weights=(-1.0,)).validate()
-    ev.EvalConfig(synthetic_weights=(), weighted=False).validate()  # nothing to choose when it is off
+        EvalConfig(synthetic_weights=(-1.0,)).validate()
+    EvalConfig(synthetic_weights=(), weighted=False).validate()  # nothing to choose when it is off

@@ -6,7 +6,8 @@ import re
 
 import numpy as np
 
-from sparself.report import conclusions, fmt, write_report
+from sparself.evaluation.document import fmt
+from sparself.evaluation.report import conclusions, write_report
 
 
 def _summary(psnr, ssim, lpips, seeds=None):
@@ -14,27 +15,38 @@ def _summary(psnr, ssim, lpips, seeds=None):
         if seeds:
             return {"mean": v, "std": 0.1, "n_seeds": seeds}
         return {"mean": v, "std": 0.0, "min": v, "max": v, "n": 0 if v is None else 3, "n_inf": 0}
+
     return {"psnr": one(psnr), "ssim": one(ssim), "lpips": one(lpips)}
 
 
 def _results(lpips_status: str, lp_value):
     scene = {
-        "name": "toy", "status": "ok", "notes": [], "timings": {"network": 1.0, "baselines": 2.0, "total": 3.0},
+        "name": "toy",
+        "status": "ok",
+        "notes": [],
+        "timings": {"network": 1.0, "baselines": 2.0, "total": 3.0},
         "protocol": {"rule": "dense: ...", "held_out": ["a.png"], "scored": ["a.png"], "inputs": ["b.png"]},
-        "view_synthesis": {"sparself": {"summary": _summary(24.0, 0.8, lp_value, seeds=3)},
-                           "blend": {"summary": _summary(23.0, 0.7, lp_value)}},
+        "view_synthesis": {
+            "sparself": {"summary": _summary(24.0, 0.8, lp_value, seeds=3)},
+            "blend": {"summary": _summary(23.0, 0.7, lp_value)},
+        },
         "midpoints": {},
-        "densification": {"mpi": {
-            "status": "ok",
-            "base": {"views": 25, "summary": _summary(20.0, 0.6, lp_value)},
-            "sparself": {"views": 35, "summary": _summary(21.5, 0.65, lp_value, seeds=3)},
-            "oracle": {"views": 35, "summary": _summary(23.0, 0.7, lp_value)},
-            "oracle_share": 0.5, "oracle_gain_db": 3.0,
-        }},
+        "densification": {
+            "mpi": {
+                "status": "ok",
+                "base": {"views": 25, "summary": _summary(20.0, 0.6, lp_value)},
+                "sparself": {"views": 35, "summary": _summary(21.5, 0.65, lp_value, seeds=3)},
+                "oracle": {"views": 35, "summary": _summary(23.0, 0.7, lp_value)},
+                "oracle_share": 0.5,
+                "oracle_gain_db": 3.0,
+            }
+        },
     }
-    return {"settings": {"inputs": 25, "seeds": 3, "lpips_status": lpips_status, "versions": {"torch": "x"}},
-            "not_run": {"dietnerf": "not run: needs CLIP weights that cannot be fetched here"},
-            "scenes": [scene, {"name": "broken", "status": "failed", "error": "InputError: x.png: not an image"}]}
+    return {
+        "settings": {"inputs": 25, "seeds": 3, "lpips_status": lpips_status, "versions": {"torch": "x"}},
+        "not_run": {"dietnerf": "not run: needs CLIP weights that cannot be fetched here"},
+        "scenes": [scene, {"name": "broken", "status": "failed", "error": "InputError: x.png: not an image"}],
+    }
 
 
 def _lpips_rows(md: str) -> list[str]:
@@ -61,7 +73,7 @@ def test_lpips_is_never_a_number_when_unavailable(tmp_path):
     assert len(said) == 3, said  # Tables 1-3 (a heading), baselines vs oracle and view synthesis (captions)
     for k in said:
         line = lines[k] if not lines[k].startswith("#") else lines[k + 2]
-        assert line.endswith("unavailable: weights not found") and not lines[k + 2].startswith("|"), lines[k:k + 3]
+        assert line.endswith("unavailable: weights not found") and not lines[k + 2].startswith("|"), lines[k : k + 3]
     assert "0.250" not in md
     html = (tmp_path / "report.html").read_text()
     assert "0.250" not in html and "unavailable" in html

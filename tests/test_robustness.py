@@ -32,8 +32,10 @@ def snapshot(folder: Path) -> dict:
     out = {}
     for p in sorted([folder, *folder.rglob("*")]):
         st = p.stat()
-        out[str(p.relative_to(folder))] = (hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir",
-                                           st.st_mtime_ns)
+        out[str(p.relative_to(folder))] = (
+            hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir",
+            st.st_mtime_ns,
+        )
     return out
 
 
@@ -67,10 +69,18 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
     import torch
 
     full, part = tmp_path / "full", tmp_path / "part"
-    uninterrupted = subprocess.Popen(cli("train", scene, "--out", full, "--epochs", "9", *TRAIN, "-q"), env=ENV,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    killed = subprocess.Popen(cli("train", scene, "--out", part, "--epochs", "9", *TRAIN, "-q"), env=ENV,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    uninterrupted = subprocess.Popen(
+        cli("train", scene, "--out", full, "--epochs", "9", *TRAIN, "-q"),
+        env=ENV,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    killed = subprocess.Popen(
+        cli("train", scene, "--out", part, "--epochs", "9", *TRAIN, "-q"),
+        env=ENV,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     t0 = time.monotonic()
     while not (part / "checkpoint.pt").exists() and killed.poll() is None and time.monotonic() - t0 < 60:
         time.sleep(0.002)
@@ -80,17 +90,24 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
     assert killed.returncode == -signal.SIGKILL
     _, err = uninterrupted.communicate(timeout=120)
     assert uninterrupted.returncode == 0, err.decode()
-    resumed = subprocess.run(cli("train", scene, "--out", part, "--epochs", "9", *TRAIN, "--resume", "-q"), env=ENV,
-                             capture_output=True, text=True, timeout=120)
+    resumed = subprocess.run(
+        cli("train", scene, "--out", part, "--epochs", "9", *TRAIN, "--resume", "-q"),
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert resumed.returncode == 0, resumed.stderr
     a, b = _weights(full / "checkpoint.pt"), _weights(part / "checkpoint.pt")
     assert a["epoch"] == b["epoch"] == 9
     assert a["model"].keys() == b["model"].keys()
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
+
     # the log of the resumed run has each epoch once, with the uninterrupted run's losses
     def losses(p):
         return [ln.split(",")[:2] for ln in (p / "train_log.csv").read_text().splitlines()]
+
     assert losses(part) == losses(full) and len(losses(full)) == 10
 
     # killed before the first checkpoint (what a kill in epochs 1-5 leaves: config and a partial log):
@@ -100,8 +117,13 @@ def test_killed_training_resumes_to_the_same_weights(scene, tmp_path):
     for name in ("config.json", ".sparself-output"):
         (early / name).write_bytes((full / name).read_bytes())
     (early / "train_log.csv").write_text("\n".join((full / "train_log.csv").read_text().splitlines()[:3]) + "\n")
-    again = subprocess.run(cli("train", scene, "--out", early, "--epochs", "9", *TRAIN, "--resume", "-q"), env=ENV,
-                           capture_output=True, text=True, timeout=120)
+    again = subprocess.run(
+        cli("train", scene, "--out", early, "--epochs", "9", *TRAIN, "--resume", "-q"),
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert again.returncode == 0 and "no checkpoint yet" in again.stderr, again.stderr
     c = _weights(early / "checkpoint.pt")
     assert c["epoch"] == 9 and all(torch.equal(a["model"][k], c["model"][k]) for k in a["model"])
@@ -117,8 +139,25 @@ def test_same_seed_twice_gives_byte_identical_images(scene, tmp_path, capsys):
     outs = []
     for k in range(2):
         out = tmp_path / f"dense{k}"
-        code = main([str(a) for a in ("densify", scene, "--out", out, "--epochs", "1", "--n-mid", "2",
-                                      "--n-extra", "1", *DENSIFY, "-q")])
+        code = main(
+            [
+                str(a)
+                for a in (
+                    "densify",
+                    scene,
+                    "--out",
+                    out,
+                    "--epochs",
+                    "1",
+                    "--n-mid",
+                    "2",
+                    "--n-extra",
+                    "1",
+                    *DENSIFY,
+                    "-q",
+                )
+            ]
+        )
         assert code == 0, capsys.readouterr().err
         outs.append(out)
     files = sorted(str(p.relative_to(outs[0])) for p in outs[0].rglob("*") if p.is_file())
@@ -154,12 +193,14 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
 def test_leftovers_of_a_killed_run_are_removed_by_the_next_one(tmp_path):
     """SIGKILL runs no cleanup, so its hidden temporary folder stays; the next run writing the same output
     removes it (its process is dead) but keeps the temporary folder of a run that is still alive."""
-    from sparself.outputs import atomic_dir
+    from sparself.core.outputs import atomic_dir
 
     out = tmp_path / "out"
-    code = ("import sys, time\nfrom pathlib import Path\nfrom sparself.outputs import atomic_dir\n"
-            "with atomic_dir(Path(sys.argv[1])) as t:\n"
-            "    (t / 'part.txt').write_text('half')\n    print('ready', flush=True)\n    time.sleep(60)\n")
+    code = (
+        "import sys, time\nfrom pathlib import Path\nfrom sparself.core.outputs import atomic_dir\n"
+        "with atomic_dir(Path(sys.argv[1])) as t:\n"
+        "    (t / 'part.txt').write_text('half')\n    print('ready', flush=True)\n    time.sleep(60)\n"
+    )
     proc = subprocess.Popen([sys.executable, "-c", code, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "ready"
     live = subprocess.Popen([sys.executable, "-c", code, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sparself.errors import InputError
-from sparself.geometry import Pose, quat_normalize
-from sparself.scene import Camera, Frame, Scene, image_size_of, list_images, load_image
+from sparself.capture.images import image_size_of, list_images, load_image
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.errors import InputError
+from sparself.core.geometry import Pose, quat_normalize
 
 
 def _rgb(h=12, w=16, seed=0):
@@ -28,7 +29,7 @@ def test_gray_rgba_16bit_become_rgb(tmp_path, caplog):
     Image.fromarray(g).save(tmp_path / "g.png")
     rgba = np.dstack([_rgb(), np.full((12, 16), 7, np.uint8)])
     Image.fromarray(rgba).save(tmp_path / "a.png")
-    g16 = (np.arange(12 * 16, dtype=np.uint16).reshape(12, 16) * 300)
+    g16 = np.arange(12 * 16, dtype=np.uint16).reshape(12, 16) * 300
     Image.fromarray(g16).save(tmp_path / "d.png")
     with caplog.at_level("WARNING"):
         ig = load_image(tmp_path / "g.png")

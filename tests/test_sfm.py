@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from sparself.capture.images import load_image
+from sparself.capture.io import read_colmap, read_scene
+from sparself.capture.posecheck import compare_poses
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.capture.sfm import SfmConfig, recover_poses, validate_images
 from sparself.cli import main
-from sparself.errors import InputError, RegistrationError
-from sparself.geometry import Pose, rotmat_to_quat, transform_pose
-from sparself.io import read_colmap, read_scene
-from sparself.scene import Camera, Frame, Scene, load_image
-from sparself.sfm import SfmConfig, compare_poses, recover_poses, validate_images
+from sparself.core.errors import InputError, RegistrationError
+from sparself.core.geometry import Pose, rotmat_to_quat, transform_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BIRD = DATA / "llff_bird"
@@ -54,8 +56,15 @@ def bird_cli_out(bird_small, tmp_path_factory) -> Path:
 
 
 def test_cli_poses_registers_and_writes_layout(bird_cli_out, bird_small, capsys):
-    for rel in ("sparse/0/cameras.bin", "sparse/0/images.bin", "sparse/0/points3D.bin", "poses_bounds.npy",
-                "transforms.json", "sfm_report.json", "images/001.jpg"):
+    for rel in (
+        "sparse/0/cameras.bin",
+        "sparse/0/images.bin",
+        "sparse/0/points3D.bin",
+        "poses_bounds.npy",
+        "transforms.json",
+        "sfm_report.json",
+        "images/001.jpg",
+    ):
         assert (bird_cli_out / rel).is_file(), rel
     rep = json.loads((bird_cli_out / "sfm_report.json").read_text())
     assert len(rep["registered"]) >= 3
@@ -73,7 +82,8 @@ def test_cli_poses_registers_and_writes_layout(bird_cli_out, bird_small, capsys)
     assert np.abs(load_image(bird_cli_out / "images" / ROTATED) - load_image(bird_small / ROTATED)).mean() < 0.01
     assert scene.load(scene.frames.index(next(f for f in scene.frames if f.name == ROTATED))).shape == (960, 544, 3)
     # the three writers agree with each other
-    from sparself.io import read_llff, read_nerfstudio
+    from sparself.capture.io import read_llff, read_nerfstudio
+
     for other in (read_llff(bird_cli_out), read_nerfstudio(bird_cli_out)):
         for a, b in zip(scene.frames, other.frames):
             np.testing.assert_allclose(a.pose.w2c(), b.pose.w2c(), atol=1e-6)
@@ -81,8 +91,9 @@ def test_cli_poses_registers_and_writes_layout(bird_cli_out, bird_small, capsys)
 
 def test_recovered_poses_match_published(bird_cli_out):
     est = read_scene(bird_cli_out)
-    ref = read_colmap(BIRD).subset([i for i, n in enumerate(f.name for f in read_colmap(BIRD).frames)
-                                    if n in BIRD_VIEWS])
+    ref = read_colmap(BIRD).subset(
+        [i for i, n in enumerate(f.name for f in read_colmap(BIRD).frames) if n in BIRD_VIEWS]
+    )
     cmp = compare_poses(est, ref)
     assert cmp["n"] == len(BIRD_VIEWS), cmp["missing"]
     assert cmp["rot_deg_mean"] < ROT_TOL_DEG and cmp["trans_rel_mean"] < TRANS_TOL_REL, cmp
@@ -106,6 +117,7 @@ def test_cli_refuses_existing_output(bird_cli_out, bird_small, capsys):
 
 
 # ---- bad input (all caught before COLMAP runs) ----------------------------------------------------
+
 
 def _write_images(d: Path, n: int, size=(64, 48), seed=0) -> list[Path]:
     rng = np.random.default_rng(seed)
@@ -169,6 +181,7 @@ def test_unregistrable_images_raise_registration_error(tmp_path):
 
 # ---- compare_poses ------------------------------------------------------------------------------
 
+
 def _ring(n=8) -> Scene:
     frames = []
     for i in range(n):
@@ -186,8 +199,10 @@ def test_compare_poses_invariant_to_similarity_and_measures_rotation():
     ref = _ring()
     ang = np.deg2rad(30)
     Rw = np.array([[np.cos(ang), 0, np.sin(ang)], [0, 1, 0], [-np.sin(ang), 0, np.cos(ang)]])
-    moved = Scene(ref.cameras, [Frame(f.name, transform_pose(f.pose, 3.7, Rw, np.array([1.0, -2.0, 0.5])), 1,
-                                      f.index) for f in ref.frames])
+    moved = Scene(
+        ref.cameras,
+        [Frame(f.name, transform_pose(f.pose, 3.7, Rw, np.array([1.0, -2.0, 0.5])), 1, f.index) for f in ref.frames],
+    )
     c = compare_poses(moved, ref)
     assert c["rot_deg_max"] < 1e-4 and c["trans_max"] < 1e-9 and c["n"] == 8  # arccos near 1: ~1e-6 deg
     # turn one estimated camera by 5 degrees about its optical axis; centres unchanged

@@ -32,17 +32,22 @@ def test_signal_during_densify_leaves_nothing(scene, tmp_path, sig):
     need("densify")
     res = tmp_path / "res"
     res.mkdir()
-    proc = subprocess.Popen(cli("densify", scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2",
-                                "--n-extra", "1", *DENSIFY), env=ENV, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cli("densify", scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2", "--n-extra", "1", *DENSIFY),
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_for(proc, lambda: list(res.glob(".out.tmp-*/run/train_log.csv")), "training started")
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     name = signal.Signals(sig).name
     assert proc.returncode == 128 + sig, err
     lines = [ln for ln in err.splitlines() if "interrupted" in ln]
-    assert lines == [f"sparself densify: interrupted by {name}; nothing was written to {res / 'out'}; "
-                     "run the command again"], err
+    assert lines == [
+        f"sparself densify: interrupted by {name}; nothing was written to {res / 'out'}; run the command again"
+    ], err
     assert "Traceback" not in err
     assert listing(res) == []  # no output, no hidden temporary folder
 
@@ -60,11 +65,13 @@ def test_sigterm_during_training_keeps_the_checkpoint_and_says_how_to_resume(sce
     assert proc.returncode == 143 and "Traceback" not in err, err
     epoch = torch.load(run / "checkpoint.pt", weights_only=False)["epoch"]
     assert epoch >= 5
-    hint = (f"sparself train: interrupted by SIGTERM; the checkpoint at epoch {epoch} is kept in "
-            f"{run / 'checkpoint.pt'}; continue with: ")
+    hint = (
+        f"sparself train: interrupted by SIGTERM; the checkpoint at epoch {epoch} is kept in "
+        f"{run / 'checkpoint.pt'}; continue with: "
+    )
     lines = [ln for ln in err.splitlines() if "interrupted" in ln]
     assert len(lines) == 1 and lines[0].startswith(hint), err
-    resume = shlex.split(lines[0][len(hint):])
+    resume = shlex.split(lines[0][len(hint) :])
     assert resume == ["sparself", *argv, "--resume"]
     assert not [p for p in [*tmp_path.iterdir(), *run.iterdir()] if ".tmp-" in p.name]  # no temporary file left
     # the printed command continues the run (here to a nearer end, to keep the test short)

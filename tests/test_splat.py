@@ -6,12 +6,22 @@ import pytest
 import torch
 
 from planescene import DEPTH, plane_scene
-from sparself.geometry import Pose
-from sparself.metrics import psnr
+from sparself.capture.scene import Camera
+from sparself.core.geometry import Pose
+from sparself.core.metrics import psnr
 from sparself.recon import RECONSTRUCTORS
-from sparself.recon.splat import (ALPHA_MAX, ALPHA_MIN, EPS2D, Gaussians, SplatConfig, fit, project,
-                                  rasterize, rasterize_reference, render_gaussians)
-from sparself.scene import Camera
+from sparself.recon.splat import (
+    ALPHA_MAX,
+    ALPHA_MIN,
+    EPS2D,
+    Gaussians,
+    SplatConfig,
+    fit,
+    project,
+    rasterize,
+    rasterize_reference,
+    render_gaussians,
+)
 
 torch.set_num_threads(2)
 D = torch.float64
@@ -23,12 +33,17 @@ def _gaussians(means, scales, colors, opacities, quats=None) -> Gaussians:
     sh = torch.zeros(n, 1, 3, dtype=D)
     sh[:, 0] = (torch.tensor(colors, dtype=D) - 0.5) / 0.28209479177387814
     q = torch.tensor(quats, dtype=D) if quats is not None else torch.tensor([[1.0, 0, 0, 0]] * n, dtype=D)
-    return Gaussians(torch.tensor(means, dtype=D), q, torch.log(torch.tensor(scales, dtype=D)),
-                     torch.logit(torch.tensor(opacities, dtype=D)), sh)
+    return Gaussians(
+        torch.tensor(means, dtype=D),
+        q,
+        torch.log(torch.tensor(scales, dtype=D)),
+        torch.logit(torch.tensor(opacities, dtype=D)),
+        sh,
+    )
 
 
 def _pixels(cam: Camera):
-    v, u = np.mgrid[0:cam.height, 0:cam.width] + 0.5
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width] + 0.5
     return u, v
 
 
@@ -63,8 +78,8 @@ def test_off_axis_anisotropic_rotated_gaussian_follows_ewa():
     g = _gaussians([[x, y, z]], [[sy, sx, sz]], [[1.0, 1.0, 1.0]], [0.6], quats=[[h, 0, 0, h]])
     img, p = render_gaussians(g, IDENTITY, cam, torch.zeros(3, dtype=D), 0)
     f = 40.0
-    J = np.array([[f / z, 0, -f * x / z ** 2], [0, f / z, -f * y / z ** 2]])
-    cov = J @ np.diag([sx ** 2, sy ** 2, sz ** 2]) @ J.T + EPS2D * np.eye(2)
+    J = np.array([[f / z, 0, -f * x / z**2], [0, f / z, -f * y / z**2]])
+    cov = J @ np.diag([sx**2, sy**2, sz**2]) @ J.T + EPS2D * np.eye(2)
     mu = (f * x / z + 30.0, f * y / z + 25.0)
     np.testing.assert_allclose(p.means2d[0].numpy(), mu, atol=1e-12)
     u, v = _pixels(cam)
@@ -99,11 +114,16 @@ def test_front_occludes_back_whatever_the_order_given():
 
 def _random_gaussians(n: int, seed: int, sh_degree: int = 1) -> Gaussians:
     gen = torch.Generator().manual_seed(seed)
-    means = torch.randn(n, 3, generator=gen, dtype=D) * torch.tensor([0.8, 0.6, 0.5], dtype=D) + torch.tensor([0, 0, 3.0], dtype=D)
-    return Gaussians(means, torch.randn(n, 4, generator=gen, dtype=D),
-                     torch.randn(n, 3, generator=gen, dtype=D) * 0.3 - 2.5,
-                     torch.randn(n, generator=gen, dtype=D) * 1.5,
-                     torch.randn(n, 4 if sh_degree else 1, 3, generator=gen, dtype=D) * 0.5)
+    means = torch.randn(n, 3, generator=gen, dtype=D) * torch.tensor([0.8, 0.6, 0.5], dtype=D) + torch.tensor(
+        [0, 0, 3.0], dtype=D
+    )
+    return Gaussians(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=D),
+        torch.randn(n, 3, generator=gen, dtype=D) * 0.3 - 2.5,
+        torch.randn(n, generator=gen, dtype=D) * 1.5,
+        torch.randn(n, 4 if sh_degree else 1, 3, generator=gen, dtype=D) * 0.5,
+    )
 
 
 def test_fast_path_equals_the_per_gaussian_reference():
@@ -130,7 +150,9 @@ def test_gradients_match_finite_differences(reference):
     cam = Camera.pinhole(10, 8, 12.0)
     g = _random_gaussians(3, 1)
     g.means = torch.tensor([[0.1, 0.05, 3.0], [-0.2, 0.1, 3.5], [0.05, -0.15, 2.5]], dtype=D)
-    g.log_scales = torch.full((3, 3), -1.0, dtype=D) + 0.2 * torch.randn(3, 3, dtype=D, generator=torch.Generator().manual_seed(2))
+    g.log_scales = torch.full((3, 3), -1.0, dtype=D) + 0.2 * torch.randn(
+        3, 3, dtype=D, generator=torch.Generator().manual_seed(2)
+    )
     bg = torch.tensor([0.1, 0.2, 0.3], dtype=D)
     w2c = torch.tensor(IDENTITY.w2c(), dtype=D)
     K = torch.tensor(cam.K, dtype=D)
@@ -150,8 +172,18 @@ def test_tiny_fit_lowers_the_loss_and_raises_training_psnr():
     rng = np.random.default_rng(0)
     sc.points = np.stack([rng.uniform(-0.7, 0.9, 400), rng.uniform(-0.5, 0.5, 400), np.full(400, DEPTH)], 1)
     cam, pose = sc.cameras[1], sc.frames[1].pose
-    cfg = SplatConfig(steps=60, init_points=300, densify_every=15, densify_from=0.2, densify_until=0.8,
-                      max_gaussians=600, progress=False, seed=3, lr_opacities=0.1, min_steps_per_view=0)
+    cfg = SplatConfig(
+        steps=60,
+        init_points=300,
+        densify_every=15,
+        densify_from=0.2,
+        densify_until=0.8,
+        max_gaussians=600,
+        progress=False,
+        seed=3,
+        lr_opacities=0.1,
+        min_steps_per_view=0,
+    )
     before = fit(sc, cfg, steps=0).render(pose, cam)
     r = fit(sc, cfg)
     after = r.render(pose, cam)
@@ -189,8 +221,9 @@ def test_registry_3dgs_picks_the_cpu_path_without_cuda():
 
     if available()[0]:
         pytest.skip("gsplat and CUDA are available: 3dgs uses them")
-    r = RECONSTRUCTORS["3dgs"](plane_scene(xs=(0.0, 0.2)), steps=2, init_points=50, progress=False,
-                               min_steps_per_view=3)
+    r = RECONSTRUCTORS["3dgs"](
+        plane_scene(xs=(0.0, 0.2)), steps=2, init_points=50, progress=False, min_steps_per_view=3
+    )
     assert r.backend.startswith("cpu") and len(r.history) == 6  # at least 3 steps per view
     with pytest.raises(ValueError):
         SplatConfig(sh_degree=2)

@@ -6,18 +6,21 @@ import csv
 import dataclasses
 import json
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from sparself.errors import ConfigError, InputError, OutputError
-from sparself.geometry import Pose
-from sparself.scene import Camera, Frame, Scene, save_image
-from sparself.synthesize import densify_scene, synthesize
-from sparself.train import TrainConfig, load_run, predict_leave_one_out, train
-from planescene import SF, SH, SW, small_plane_scene as plane_scene, small_view as render_plane
+from planescene import SF, SH, SW
+from planescene import small_plane_scene as plane_scene
+from planescene import small_view as render_plane
+from sparself.capture.scene import Camera, Frame, Scene
+from sparself.core.errors import ConfigError, InputError, OutputError
+from sparself.core.geometry import Pose
+from sparself.synthesis.run import load_run
+from sparself.synthesis.synthesize import densify_scene, synthesize
+from sparself.synthesis.train import predict_leave_one_out, train
+from sparself.synthesis.train_config import TrainConfig
 
 W, H, F = SW, SH, SF
 
@@ -26,15 +29,19 @@ def _state(run):
     return {k: v.clone() for k, v in run.model.state_dict().items()}
 
 
-@pytest.mark.parametrize("decoder", [{"decoder": "sweep"}, {"decoder": "fc"}, {"decoder": "sweep", "fallback": "flow"}],
-                         ids=["sweep", "fc", "sweep-flow"])
+@pytest.mark.parametrize(
+    "decoder",
+    [{"decoder": "sweep"}, {"decoder": "fc"}, {"decoder": "sweep", "fallback": "flow"}],
+    ids=["sweep", "fc", "sweep-flow"],
+)
 def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder, tiny_cfg):
     scene = plane_scene()
     run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, **decoder), progress=False)
     base = predict_leave_one_out(run, scene, [3])
     changed = dataclasses.replace(scene, frames=list(scene.frames))
-    changed.frames[3] = dataclasses.replace(scene.frames[3], image=np.random.default_rng(1).random((H, W, 3),
-                                                                                                  np.float32))
+    changed.frames[3] = dataclasses.replace(
+        scene.frames[3], image=np.random.default_rng(1).random((H, W, 3), np.float32)
+    )
     assert np.array_equal(predict_leave_one_out(run, changed, [3]), base)
     # the test can fail: the frame before it is a source, and changing it does change the prediction
     changed.frames[2] = changed.frames[3]
@@ -56,8 +63,7 @@ def test_holdout_frames_are_never_opened(tmp_path, tiny_cfg):
 
 def test_a_tiny_sequence_is_fitted(tmp_path, tiny_cfg):
     scene = plane_scene(5)
-    train(scene, tmp_path / "run", tiny_cfg(decoder="fc", epochs=30, batch_size=5, checkpoint_every=10),
-          progress=False)
+    train(scene, tmp_path / "run", tiny_cfg(decoder="fc", epochs=30, batch_size=5, checkpoint_every=10), progress=False)
     with open(tmp_path / "run" / "train_log.csv") as f:
         loss = [float(r["loss"]) for r in csv.DictReader(f)]
     assert len(loss) == 30
@@ -100,10 +106,12 @@ def test_resume_with_another_config_is_a_clear_error(tmp_path, tiny_cfg):
 
 def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path, tiny_cfg):
     scene = plane_scene()
-    targets = [Frame("mid", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([2.5 * 0.08, 0, 0])), 1, 2.5),
-               Frame("after", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([6.2 * 0.08, 0, 0])), 1, 6.2)]
+    targets = [
+        Frame("mid", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([2.5 * 0.08, 0, 0])), 1, 2.5),
+        Frame("after", Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([6.2 * 0.08, 0, 0])), 1, 6.2),
+    ]
     r1 = train(scene, tmp_path / "a", tiny_cfg(epochs=2), progress=False)
-    r2 = train(scene, tmp_path / "b", tiny_cfg(epochs=2), progress=False)
+    train(scene, tmp_path / "b", tiny_cfg(epochs=2), progress=False)
     out1, out2 = synthesize(r1, scene, targets), synthesize(tmp_path / "b", scene, targets)
     assert out1.shape == (2, H, W, 3) and out1.dtype == np.float32
     assert np.array_equal(out1, out2)
@@ -119,9 +127,9 @@ def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path, ti
 
 
 def test_densify_end_to_end(tmp_path, tiny_cfg):
-    from sparself import io as sio
-    from sparself.plan import PlanConfig
+    from sparself.capture import io as sio
     from sparself.pipeline import DensifyConfig, densify
+    from sparself.synthesis.plan import PlanConfig
 
     scene = plane_scene(7)
     src = tmp_path / "capture"
@@ -134,7 +142,7 @@ def test_densify_end_to_end(tmp_path, tiny_cfg):
     assert len(back) == 12
     assert (out / "scene" / "transforms.json").is_file() and (out / "scene" / "poses_bounds.npy").is_file()
     assert (out / "scene" / "sparse" / "0").is_dir() and (out / "run" / "checkpoint.pt").is_file()
-    from sparself.plan import load_plan
+    from sparself.synthesis.plan import load_plan
 
     planned = load_plan(out / "plan.json", back, check_source=False)  # back: sources + synthesized
     synth = {f.name: f for f in dense.frames if f.synthetic}
@@ -147,28 +155,79 @@ def test_densify_end_to_end(tmp_path, tiny_cfg):
 
 
 def test_cli_train_then_synthesize_a_plan(tmp_path, capsys):
-    from sparself import io as sio
+    from sparself.capture import io as sio
     from sparself.cli import main
 
     sio.write_scene(plane_scene(6), tmp_path / "capture")
     run = tmp_path / "run"
-    assert main(["train", str(tmp_path / "capture"), "--out", str(run), "--epochs", "2", "--size", "40",
-                 "--crop", "16", "--backbone-size", "32", "--holdout", "2", "-q"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                str(tmp_path / "capture"),
+                "--out",
+                str(run),
+                "--epochs",
+                "2",
+                "--size",
+                "40",
+                "--crop",
+                "16",
+                "--backbone-size",
+                "32",
+                "--holdout",
+                "2",
+                "-q",
+            ]
+        )
+        == 0
+    )
     assert json.loads((run / "config.json").read_text())["holdout"] == [2]
-    assert main(["plan", str(tmp_path / "capture"), "--out", str(tmp_path / "plan.json"), "--n-mid", "2",
-                 "--n-extra", "0", "-q"]) == 0
-    assert main(["synthesize", str(run), "--plan", str(tmp_path / "plan.json"), "--out", str(tmp_path / "dense"),
-                 "-q"]) == 0
+    assert (
+        main(
+            [
+                "plan",
+                str(tmp_path / "capture"),
+                "--out",
+                str(tmp_path / "plan.json"),
+                "--n-mid",
+                "2",
+                "--n-extra",
+                "0",
+                "-q",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(["synthesize", str(run), "--plan", str(tmp_path / "plan.json"), "--out", str(tmp_path / "dense"), "-q"])
+        == 0
+    )
     dense = sio.read_scene(tmp_path / "dense")
     assert len(dense) == 5 + 2  # the held-out frame is not a source
-    assert main(["train", str(tmp_path / "capture"), "--out", str(run), "--epochs", "3", "--decoder", "fc",
-                 "--resume", "-q"]) == 2
+    assert (
+        main(
+            [
+                "train",
+                str(tmp_path / "capture"),
+                "--out",
+                str(run),
+                "--epochs",
+                "3",
+                "--decoder",
+                "fc",
+                "--resume",
+                "-q",
+            ]
+        )
+        == 2
+    )
     assert "different config" in capsys.readouterr().err
 
 
 def test_sweep_planes_surround_the_object_of_a_ring_capture():
-    from sparself.geometry import rotmat_to_quat
-    from sparself.train import sweep_depth_bounds
+    from sparself.core.geometry import rotmat_to_quat
+    from sparself.synthesis.train_config import sweep_depth_bounds
 
     frames = []
     for k in range(8):
@@ -194,7 +253,7 @@ def test_sweep_planes_surround_the_object_of_a_ring_capture():
 def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path, tiny_cfg):
     """fallback="flow": the gate's alternative is the two sources aligned by optical flow; a midpoint of
     the textured plane comes out close to the truth, and the flow-aligned plane is what the decoder sees."""
-    from sparself.warp import flow_pair
+    from sparself.core.warp import flow_pair
     from sparself.model import sweep_volume
 
     scene = plane_scene()
@@ -204,7 +263,9 @@ def test_flow_fallback_renders_a_novel_view_of_the_plane(tmp_path, tiny_cfg):
     gt = render_plane(2.5 * 0.08)
     assert float(np.mean((out[4:-4, 4:-4] - gt[4:-4, 4:-4]) ** 2)) < 0.1 * float(np.var(gt))
     w0, w1 = flow_pair(render_plane(2 * 0.08), render_plane(3 * 0.08), 0.5)
-    assert float(np.mean(np.abs(0.5 * (w0 + w1) - gt)[4:-4, 4:-4])) < float(np.mean(np.abs(render_plane(2 * 0.08) - gt)[4:-4, 4:-4]))
+    assert float(np.mean(np.abs(0.5 * (w0 + w1) - gt)[4:-4, 4:-4])) < float(
+        np.mean(np.abs(render_plane(2 * 0.08) - gt)[4:-4, 4:-4])
+    )
     src = torch.rand(2, 3, H, W)
     plain = torch.rand(2, 3, H, W)
     K = torch.tensor(scene.cameras[1].K, dtype=torch.float32)
@@ -225,7 +286,7 @@ def test_configs_saved_before_the_fallback_option_load_as_the_plain_blend(tiny_c
 def test_four_sources_train_reload_and_synthesize_with_confidence(tmp_path, tiny_cfg):
     """--sources 4: trains, reloads from its folder with the same decoder, and synthesizes a view with
     its confidence map; sources < 2 is refused."""
-    from sparself.synthesize import synthesize_with_confidence
+    from sparself.synthesis.synthesize import synthesize_with_confidence
 
     scene = plane_scene()
     run = train(scene, tmp_path / "run", tiny_cfg(epochs=1, sources=4), progress=False)
@@ -260,9 +321,9 @@ def test_ring_range_option_reaches_the_config_from_the_command_line(tiny_cfg):
 def test_end_targets_off_trains_only_on_targets_between_their_sources():
     """On an open line the leave-one-out targets at the ends extrapolate (t outside [0, 1]): with
     end_targets off the loss never visits them; on; or with fewer than 2 inner targets, it visits all."""
-    from sparself.model.query import Sources, leave_one_out
     from sparself.model import PoseNorm
-    from sparself.train import trained_targets
+    from sparself.model.query import Sources, leave_one_out
+    from sparself.synthesis.train import trained_targets
 
     src = Sources.from_scene(plane_scene(6)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0), np.array([2.0, 3.0]))
     q = leave_one_out(src)

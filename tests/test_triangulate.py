@@ -1,4 +1,4 @@
-"""sparself.triangulate: sparse points from real photos at known poses, and the evaluation's use of them
+"""sparself.capture.triangulate: sparse points from real photos at known poses, and the evaluation's use of them
 (points from the N inputs only, the same for every row)."""
 
 from __future__ import annotations
@@ -10,11 +10,14 @@ import numpy as np
 import pytest
 
 from planescene import DEPTH, camera_line, noise, on_disk, plane_image, texture
-from sparself import evaluate as ev
-from sparself.baselines import BASELINES
-from sparself.errors import ConfigError
-from sparself.evaluate import EvalConfig, make_split
-from sparself.triangulate import TriangulateConfig, Triangulated, triangulate
+from sparself.capture.scene import MIN_POINTS
+from sparself.capture.triangulate import TriangulateConfig, Triangulated, triangulate
+from sparself.core.errors import ConfigError
+from sparself.evaluation import evaluate as ev
+from sparself.evaluation import protocol
+from sparself.evaluation.config import EvalConfig
+from sparself.evaluation.split import make_split
+from sparself.synthesis.baselines import BASELINES
 
 SIZE, FOCAL = (240, 160), 80.0  # texture periods 10-30 px at DEPTH: enough SIFT features
 
@@ -79,8 +82,10 @@ FAR_AWAY = np.array([0.0, 0.0, 1000.0])  # planted "capture" points no input pho
 
 
 def _capture(folder):
-    sc = on_disk(camera_line([0.03 * i for i in range(N_FRAMES)], SIZE, FOCAL, plane_image(),
-                             name="img{:03d}.png".format), folder)
+    sc = on_disk(
+        camera_line([0.03 * i for i in range(N_FRAMES)], SIZE, FOCAL, plane_image(), name="img{:03d}.png".format),
+        folder,
+    )
     return replace(sc, points=FAR_AWAY + np.random.default_rng(0).normal(size=(300, 3)), source=folder)
 
 
@@ -94,11 +99,22 @@ def _run(tmp_path, scene, points: str):
         def render(self, pose, camera):
             return np.full((camera.height, camera.width, 3), 0.5, np.float32)
 
-    cfg = EvalConfig(size=32, inputs=5, holdout_every=4, n_mid=2, n_extra=1, seeds=1, baselines=("nearest",),
-                     densify_baselines=("nearest",), synthetic_weights=(0.5, 1.0), examples=0, lpips=False,
-                     progress=False, points=points)
-    hooks = dict(network=lambda sc, seed: BASELINES["blend"],
-                 reconstructors={"rec": Recorder})
+    cfg = EvalConfig(
+        size=32,
+        inputs=5,
+        holdout_every=4,
+        n_mid=2,
+        n_extra=1,
+        seeds=1,
+        baselines=("nearest",),
+        densify_baselines=("nearest",),
+        synthetic_weights=(0.5, 1.0),
+        examples=0,
+        lpips=False,
+        progress=False,
+        points=points,
+    )
+    hooks = dict(network=lambda sc, seed: BASELINES["blend"], reconstructors={"rec": Recorder})
     res = ev.run_evaluation([scene], cfg, tmp_path / f"out-{points}", **hooks)
     s = res["scenes"][0]
     assert s["status"] == "ok", s.get("error")
@@ -112,24 +128,27 @@ def test_evaluation_points_come_from_the_inputs_alone(tmp_path, monkeypatch):
     vault.mkdir()
     for i in split.eval:  # held-out photos are gone: reading one outside scoring would fail the scene
         shutil.move(str(scene.frames[i].path), vault / scene.frames[i].name)
-    real_truth = ev._load_truth
-    monkeypatch.setattr(ev, "_load_truth", lambda f, size: real_truth(replace(
-        f, path=f.path if f.path.exists() else vault / f.path.name), size))
+    real_truth = protocol.load_truth
+    monkeypatch.setattr(
+        protocol,
+        "load_truth",
+        lambda f, size: real_truth(replace(f, path=f.path if f.path.exists() else vault / f.path.name), size),
+    )
     given = []
-    real = ev.triangulate
+    real = protocol.triangulate
 
     def spy(sc, config=None):
         given.append([f.name for f in sc.frames])
         return real(sc, config)
 
-    monkeypatch.setattr(ev, "triangulate", spy)
+    monkeypatch.setattr(protocol, "triangulate", spy)
     s, seen, res = _run(tmp_path, scene, "inputs")
     assert given == [[scene.frames[i].name for i in split.inputs]]
     assert res["settings"]["points"] == "inputs" and s["input_points"]["source"] == "inputs"
     # N, N + sparself, weighted (choice fits and the final fit), N + nearest, oracle: every fit got them
     assert len(seen) >= 5 and {n for _, n in seen} >= {0, 3}
     first = seen[0][0]
-    assert first is not None and len(first) == s["input_points"]["points"] >= ev.MIN_POINTS
+    assert first is not None and len(first) == s["input_points"]["points"] >= MIN_POINTS
     assert _on_plane(first) > 0.9 and np.all(first[:, 2] < 100)  # none of the planted far points
     for pts, _ in seen:
         np.testing.assert_array_equal(pts, first)
@@ -140,8 +159,13 @@ def test_evaluation_can_keep_the_capture_points_and_drops_too_few(tmp_path, monk
     s, seen, res = _run(tmp_path, scene, "capture")
     assert res["settings"]["points"] == "capture" and s["input_points"] == {"source": "capture", "points": 300}
     assert all(np.array_equal(pts, scene.points) for pts, _ in seen)
-    monkeypatch.setattr(ev, "triangulate", lambda sc, config=None: replace(
-        Triangulated(), points=np.zeros((ev.MIN_POINTS - 1, 3)), colors=np.zeros((ev.MIN_POINTS - 1, 3))))
+    monkeypatch.setattr(
+        protocol,
+        "triangulate",
+        lambda sc, config=None: replace(
+            Triangulated(), points=np.zeros((MIN_POINTS - 1, 3)), colors=np.zeros((MIN_POINTS - 1, 3))
+        ),
+    )
     s, seen, _ = _run(tmp_path, scene, "inputs")
     assert all(pts is None for pts, _ in seen)
     assert any("none used" in n for n in s["notes"])

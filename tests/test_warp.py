@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from sparself.geometry import Pose, intrinsics_matrix, plane_homography, quat_normalize
-from sparself.warp import homography_warp, plane_homographies, plane_sweep
+from sparself.core.geometry import Pose, intrinsics_matrix, plane_homography, quat_normalize
+from sparself.core.warp import homography_warp, plane_homographies, plane_sweep
 
 
 def _texture(h, w):
@@ -43,8 +43,15 @@ def test_plane_sweep_reprojects_plane_of_known_depth():
     # plane in the destination frame instead: choose the world plane z_dst = depth, expressed through H
     H = plane_homography(K, K, src, dst, depth)
     Kt = torch.tensor(K)
-    vol, valid = plane_sweep(tex, Kt[None], torch.tensor(src.w2c())[None], Kt, torch.tensor(dst.w2c()),
-                             torch.tensor([2.0, depth, 9.0]), (h, w))
+    vol, valid = plane_sweep(
+        tex,
+        Kt[None],
+        torch.tensor(src.w2c())[None],
+        Kt,
+        torch.tensor(dst.w2c()),
+        torch.tensor([2.0, depth, 9.0]),
+        (h, w),
+    )
     assert vol.shape == (1, 3, 3, h, w) and valid.shape == (1, 3, 1, h, w)
     # expected: for each dst pixel, source coordinate by H, texture evaluated analytically there
     v, u = np.mgrid[0:h, 0:w] + 0.5
@@ -68,8 +75,13 @@ def test_batched_homographies_match_numpy():
     poses = [Pose.from_center(quat_normalize([1, *rng.normal(0, 0.05, 3)]), rng.normal(0, 0.3, 3)) for _ in range(3)]
     dst = Pose.from_center(quat_normalize([1, 0.02, -0.01, 0.0]), [0.1, 0.0, 0.0])
     depths = np.array([1.5, 3.0, 10.0])
-    Hs = plane_homographies(torch.tensor(np.stack([K] * 3)), torch.tensor(np.stack([p.w2c() for p in poses])),
-                            torch.tensor(K), torch.tensor(dst.w2c()), torch.tensor(depths))
+    Hs = plane_homographies(
+        torch.tensor(np.stack([K] * 3)),
+        torch.tensor(np.stack([p.w2c() for p in poses])),
+        torch.tensor(K),
+        torch.tensor(dst.w2c()),
+        torch.tensor(depths),
+    )
     for s, p in enumerate(poses):
         for d, z in enumerate(depths):
             np.testing.assert_allclose(Hs[s, d].numpy(), plane_homography(K, K, p, dst, z), atol=1e-9)

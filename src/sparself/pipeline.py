@@ -8,17 +8,18 @@ import shutil
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from . import io as sio
-from .errors import InputError
-from .options import option
-from .outputs import Input, atomic_dir, check_output_dir, scene_inputs
-from .plan import PlanConfig, plan_sequence, save_plan
-from .plot import plot_cameras
-from .scene import Scene, preloaded
-from .sfm import SfmConfig, recover_poses
-from .synthesize import densify_scene, synthesize_with_confidence
-from .train import TrainConfig, train
-from .triangulate import ensure_points
+from sparself.capture import io as sio
+from sparself.capture.plot import plot_cameras
+from sparself.capture.scene import Scene, preloaded
+from sparself.capture.sfm import SfmConfig, recover_poses
+from sparself.capture.triangulate import ensure_points
+from sparself.core.errors import InputError
+from sparself.core.options import option
+from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
+from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
+from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
+from sparself.synthesis.train import train
+from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
 
@@ -35,8 +36,11 @@ class DensifyConfig:
     overwrite: bool = False
     keep_run: bool = True
     downscaled: bool = option(True, "skip the images_2/4/8 copies beside images/ (large scenes)")
-    triangulate: bool = option(True, "write a capture without sparse points without them (by default they are "
-                                     "triangulated from its real photos at their known poses)")
+    triangulate: bool = option(
+        True,
+        "write a capture without sparse points without them (by default they are "
+        "triangulated from its real photos at their known poses)",
+    )
 
 
 def read_input(path: Path, cfg: DensifyConfig) -> Scene:
@@ -81,12 +85,19 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         # points only for the written scene: training and synthesis are the same with or without them
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
         dense = densify_scene(written, targets, syn.images, syn.confidence)
-        sio.write_scene_into(dense, tmp / "scene", dense=sio.DenseInfo(
-            "../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled))
+        sio.write_scene_into(
+            dense,
+            tmp / "scene",
+            dense=sio.DenseInfo("../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled),
+        )
         # the plan and a camera plot beside the scene, so users see where the new views are
         save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
-        plot_cameras(scene, planned=targets, path=tmp / "cameras.png",
-                     title=f"{len(scene)} input views (blue) + {len(targets)} synthesized (orange)")
+        plot_cameras(
+            scene,
+            planned=targets,
+            path=tmp / "cameras.png",
+            title=f"{len(scene)} input views (blue) + {len(targets)} synthesized (orange)",
+        )
         if not cfg.keep_run:
             shutil.rmtree(tmp / "run")
     return dense

@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 import torch.nn as nn
 
-from ..errors import ConfigError, InputError
+from sparself.core.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,9 @@ def default_weights() -> str:
         return str(cached)
     log.warning(
         "no ImageNet weights for ResNet-18 (no --weights and no %s); using random initialisation. "
-        "Download %s there to use them.", cached, RESNET18_URL,
+        "Download %s there to use them.",
+        cached,
+        RESNET18_URL,
     )
     return NO_WEIGHTS
 
@@ -128,8 +130,10 @@ def _check_weights_file(path: Path) -> None:
     if not head:
         raise InputError(f"{path}: weights file is empty (0 bytes); {_WEIGHTS_HINT}")
     if not (head.startswith(b"PK") or head[:1] == b"\x80"):
-        raise InputError(f"{path}: cannot read as torch weights: not a zip archive or a pickle (what torch.save "
-                         f"writes); {_WEIGHTS_HINT}")
+        raise InputError(
+            f"{path}: cannot read as torch weights: not a zip archive or a pickle (what torch.save "
+            f"writes); {_WEIGHTS_HINT}"
+        )
 
 
 def load_resnet18_weights(model: ResNet18, path: Path | str | None = None) -> str:
@@ -171,8 +175,10 @@ def load_resnet18_weights(model: ResNet18, path: Path | str | None = None) -> st
         )
     bad = [k for k in own if own[k].shape != sd[k].shape]
     if bad:
-        raise ConfigError(f"{path}: shape mismatch for {bad[:3]} (e.g. {tuple(sd[bad[0]].shape)} vs "
-                          f"{tuple(own[bad[0]].shape)}); is this ResNet-18?")
+        raise ConfigError(
+            f"{path}: shape mismatch for {bad[:3]} (e.g. {tuple(sd[bad[0]].shape)} vs "
+            f"{tuple(own[bad[0]].shape)}); is this ResNet-18?"
+        )
     model.load_state_dict(sd, strict=True)
     log.info("loaded ResNet-18 weights from %s", path)
     return str(path)

@@ -18,8 +18,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..geometry import Pose
-from .backbone import IMAGENET_MEAN, IMAGENET_STD, ResNet18
+from sparself.core.geometry import Pose
+from sparself.model.backbone import IMAGENET_MEAN, IMAGENET_STD, ResNet18
 
 FEAT_DIM, POSE_DIM, PE_DIM, HIDDEN = 512, 128, 512, 512
 
@@ -113,8 +113,9 @@ class CNNLSTM(nn.Module):
         x: (B, 1152); state: per layer (h, c) each (B, 512). -> (top h (B, 512), new state)."""
         new = []
         for layer, (h, c) in enumerate(state):
-            gates = F.linear(x, getattr(self.lstm, f"weight_ih_l{layer}"), getattr(self.lstm, f"bias_ih_l{layer}")) \
-                + F.linear(h, getattr(self.lstm, f"weight_hh_l{layer}"), getattr(self.lstm, f"bias_hh_l{layer}"))
+            gates = F.linear(
+                x, getattr(self.lstm, f"weight_ih_l{layer}"), getattr(self.lstm, f"bias_ih_l{layer}")
+            ) + F.linear(h, getattr(self.lstm, f"weight_hh_l{layer}"), getattr(self.lstm, f"bias_hh_l{layer}"))
             i, f, g, o = gates.chunk(4, dim=1)
             c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
             h = torch.sigmoid(o) * torch.tanh(c)
@@ -146,8 +147,17 @@ class CNNLSTM(nn.Module):
         for layer in range(2):
             w_ih, w_hh = getattr(self.lstm, f"weight_ih_l{layer}"), getattr(self.lstm, f"weight_hh_l{layer}")
             b_ih, b_hh = getattr(self.lstm, f"bias_ih_l{layer}"), getattr(self.lstm, f"bias_hh_l{layer}")
-            h, _, _ = torch.lstm(x[None], (x.new_zeros(1, 1, HIDDEN), x.new_zeros(1, 1, HIDDEN)),
-                              (w_ih, w_hh, b_ih, b_hh), True, 1, 0.0, self.training, False, True)
+            h, _, _ = torch.lstm(
+                x[None],
+                (x.new_zeros(1, 1, HIDDEN), x.new_zeros(1, 1, HIDDEN)),
+                (w_ih, w_hh, b_ih, b_hh),
+                True,
+                1,
+                0.0,
+                self.training,
+                False,
+                True,
+            )
             h = h[0]
             h_prev = torch.cat([h.new_zeros(1, HIDDEN), h[:-1]])
             gates = F.linear(x, w_ih, b_ih) + F.linear(h_prev, w_hh, b_hh)
@@ -171,13 +181,20 @@ class CNNLSTM(nn.Module):
         state = [(zeros, zeros), (zeros, zeros)]
         hs, cs = [torch.cat([zeros, zeros])], [torch.cat([zeros, zeros])]
         for k in range(x_src.shape[0]):
-            _, state = self._step(x_src[k:k + 1], state)
+            _, state = self._step(x_src[k : k + 1], state)
             hs.append(torch.cat([state[0][0], state[1][0]]))
             cs.append(torch.cat([state[0][1], state[1][1]]))
         return torch.stack(hs), torch.stack(cs)
 
-    def contexts(self, feats: torch.Tensor, src_vec: torch.Tensor, src_pos: torch.Tensor,
-                 q_vec: torch.Tensor, q_pos: torch.Tensor, n_before: torch.Tensor) -> torch.Tensor:
+    def contexts(
+        self,
+        feats: torch.Tensor,
+        src_vec: torch.Tensor,
+        src_pos: torch.Tensor,
+        q_vec: torch.Tensor,
+        q_pos: torch.Tensor,
+        n_before: torch.Tensor,
+    ) -> torch.Tensor:
         """LSTM outputs at the query steps.
 
         The LSTM is causal, so a query step's output depends only on the steps before it: the first
@@ -198,8 +215,15 @@ class CNNLSTM(nn.Module):
         h, _ = self._step(x_q, [(H[:, 0], C[:, 0]), (H[:, 1], C[:, 1])])
         return h if self.context else torch.zeros_like(h)
 
-    def contexts_reference(self, feats: torch.Tensor, src_vec: torch.Tensor, src_pos: torch.Tensor,
-                           q_vec: torch.Tensor, q_pos: torch.Tensor, layout: torch.Tensor) -> torch.Tensor:
+    def contexts_reference(
+        self,
+        feats: torch.Tensor,
+        src_vec: torch.Tensor,
+        src_pos: torch.Tensor,
+        q_vec: torch.Tensor,
+        q_pos: torch.Tensor,
+        layout: torch.Tensor,
+    ) -> torch.Tensor:
         """:meth:`contexts` computed the slow, literal way: nn.LSTM over each query's whole sequence
         (layout (B, L) from :func:`sequence_layout`). For tests."""
         b, L = layout.shape

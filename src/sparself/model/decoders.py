@@ -37,11 +37,10 @@ import torch.nn as nn
 import torch.nn.functional as F
 from kornia.metrics import ssim as kornia_ssim
 
-from ..warp import homography_warp, plane_sweep
+from sparself.core.warp import homography_warp, plane_sweep
 
 if TYPE_CHECKING:
-    from .query import Crop, Queries, Sources
-
+    from sparself.model.query import Crop, Queries, Sources
 
 
 class FCDecoder(nn.Module):
@@ -80,6 +79,7 @@ def blend_weights(w2c_src: torch.Tensor, w2c_dst: torch.Tensor) -> torch.Tensor:
     """Plain-blend weights of two sources for a target: inverse to their camera-centre distances,
     ``w_1 = d_2 / (d_1 + d_2)``, ``w_2 = d_1 / (d_1 + d_2)`` (the index-weighted blend for a target
     between them; equal weights if both distances vanish). w2c_src (2, 4, 4); w2c_dst (4, 4) -> (2,)."""
+
     def centre(m):
         return -(m[..., :3, :3].transpose(-1, -2) @ m[..., :3, 3:4])[..., 0]
 
@@ -90,9 +90,16 @@ def blend_weights(w2c_src: torch.Tensor, w2c_dst: torch.Tensor) -> torch.Tensor:
     return d.flip(0) / tot
 
 
-def sweep_volume(src: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
-                 K_dst: torch.Tensor, w2c_dst: torch.Tensor, depths: torch.Tensor,
-                 out_hw: tuple[int, int], plain: torch.Tensor | None = None) -> torch.Tensor:
+def sweep_volume(
+    src: torch.Tensor,
+    K_src: torch.Tensor,
+    w2c_src: torch.Tensor,
+    K_dst: torch.Tensor,
+    w2c_dst: torch.Tensor,
+    depths: torch.Tensor,
+    out_hw: tuple[int, int],
+    plain: torch.Tensor | None = None,
+) -> torch.Tensor:
     """Decoder input for one target: its n >= 2 sources (the bracketing pair first) warped onto every
     depth plane, plus one plane of the sources unwarped (the plain blend's input), or the pair aligned by
     optical flow when ``plain`` is given.
@@ -114,8 +121,10 @@ def sweep_volume(src: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
     if plain is not None:
         ident = torch.cat([plain.to(src.dtype), ident[2:]]) if n > 2 else plain.to(src.dtype)
         ivalid = torch.cat([torch.ones_like(plain[:, :1], dtype=src.dtype), *([ivalid[2:]] if n > 2 else [])])
-    wts = blend_weights(torch.as_tensor(w2c_src[:2], dtype=torch.float64, device=src.device),
-                        torch.as_tensor(w2c_dst, dtype=torch.float64, device=src.device)).to(src.dtype)
+    wts = blend_weights(
+        torch.as_tensor(w2c_src[:2], dtype=torch.float64, device=src.device),
+        torch.as_tensor(w2c_dst, dtype=torch.float64, device=src.device),
+    ).to(src.dtype)
     wts = torch.cat([wts, wts.new_zeros(n - 2)])
     vol = torch.cat([vol * valid, (ident * ivalid)[:, None]], dim=1)  # (n, D+1, 3, h, w)
     valid = torch.cat([valid, (ivalid * wts[:, None, None, None])[:, None]], dim=1)
@@ -149,11 +158,21 @@ class SweepDecoder(nn.Module):
     reads_sources = True
     tile = 256  # px
     tile_margin = 8  # px of context around each tile
-    max_voxels = 2 ** 25
+    max_voxels = 2**25
 
-    def __init__(self, channels: int = 8, hidden: int = 512, residual: bool = True, windows=(5,),
-                 extra_layers: int = 0, cost_scale: float = 30.0, gate: bool = True, gate_init: float = 0.0,
-                 gate_gain: float = 10.0, n_sources: int = 2) -> None:
+    def __init__(
+        self,
+        channels: int = 8,
+        hidden: int = 512,
+        residual: bool = True,
+        windows=(5,),
+        extra_layers: int = 0,
+        cost_scale: float = 30.0,
+        gate: bool = True,
+        gate_init: float = 0.0,
+        gate_gain: float = 10.0,
+        n_sources: int = 2,
+    ) -> None:
         super().__init__()
         c = channels
         self.windows = tuple(int(k) for k in windows)
@@ -166,8 +185,11 @@ class SweepDecoder(nn.Module):
         self.film = nn.Linear(hidden, 2 * c)
         nn.init.zeros_(self.film.weight)  # FiLM starts as the identity
         nn.init.zeros_(self.film.bias)
-        self.residual = nn.Sequential(nn.Conv2d(3 + 3 + 1, 16, 3, padding=1), nn.ReLU(inplace=True),
-                                      nn.Conv2d(16, 3, 3, padding=1)) if residual else None
+        self.residual = (
+            nn.Sequential(nn.Conv2d(3 + 3 + 1, 16, 3, padding=1), nn.ReLU(inplace=True), nn.Conv2d(16, 3, 3, padding=1))
+            if residual
+            else None
+        )
         if self.residual is not None:
             nn.init.zeros_(self.residual[-1].weight)
             nn.init.zeros_(self.residual[-1].bias)
@@ -181,8 +203,9 @@ class SweepDecoder(nn.Module):
         self.gate = None
         if gate:
             # inputs: sweep colour, blend colour, expected matching cost, sweep spread, cover, blend disagreement
-            self.gate = nn.Sequential(nn.Conv2d(3 + 3 + 4, 16, 3, padding=1), nn.ReLU(inplace=True),
-                                      nn.Conv2d(16, 1, 3, padding=1))
+            self.gate = nn.Sequential(
+                nn.Conv2d(3 + 3 + 4, 16, 3, padding=1), nn.ReLU(inplace=True), nn.Conv2d(16, 1, 3, padding=1)
+            )
             nn.init.zeros_(self.gate[-1].weight)
             nn.init.constant_(self.gate[-1].bias, float(gate_init) / self.gate_gain)
 
@@ -205,9 +228,20 @@ class SweepDecoder(nn.Module):
                 both = torch.stack([self._decode_tiled(sources, queries, ctx, b) for b in range(len(queries))])
             else:
                 per = max(1, self.max_voxels // (len(sources.depths) * h * w))
-                both = torch.cat([self._decode4(torch.stack([_volume(sources, queries, b, (0, 0, h, w))
-                                                             for b in range(a, min(a + per, len(queries)))]),
-                                                ctx[a:a + per]) for a in range(0, len(queries), per)])
+                both = torch.cat(
+                    [
+                        self._decode4(
+                            torch.stack(
+                                [
+                                    _volume(sources, queries, b, (0, 0, h, w))
+                                    for b in range(a, min(a + per, len(queries)))
+                                ]
+                            ),
+                            ctx[a : a + per],
+                        )
+                        for a in range(0, len(queries), per)
+                    ]
+                )
         return both[:, :3], both[:, 3:]
 
     def _decode4(self, x: torch.Tensor, ctx: torch.Tensor) -> torch.Tensor:
@@ -225,7 +259,7 @@ class SweepDecoder(nn.Module):
                 x = _volume(sources, queries, b, (ya, xa, yb - ya, xb - xa))
                 pred = self._decode4(x[None], ctx[b][None])[0]
                 th, tw = min(tile, h - y0), min(tile, w - x0)
-                out[:, y0:y0 + th, x0:x0 + tw] = pred[:, y0 - ya:y0 - ya + th, x0 - xa:x0 - xa + tw]
+                out[:, y0 : y0 + th, x0 : x0 + tw] = pred[:, y0 - ya : y0 - ya + th, x0 - xa : x0 - xa + tw]
         return out
 
     def decode_volume(self, x: torch.Tensor, ctx: torch.Tensor, return_gate: bool = False):
@@ -240,8 +274,10 @@ class SweepDecoder(nn.Module):
         diff = match_cost(c[:, :2], v[:, :2])  # the pair's (all pairs measured worse: see the README)
         b, _, d, h, w = diff.shape
         flat = diff.permute(0, 2, 1, 3, 4).reshape(b * d, 1, h, w)
-        boxes = [F.avg_pool2d(flat, k, 1, k // 2, count_include_pad=False).reshape(b, d, 1, h, w)
-                 .permute(0, 2, 1, 3, 4) for k in self.windows]
+        boxes = [
+            F.avg_pool2d(flat, k, 1, k // 2, count_include_pad=False).reshape(b, d, 1, h, w).permute(0, 2, 1, 3, 4)
+            for k in self.windows
+        ]
         v1, v2 = v[:, 0], v[:, 1]
         feat = torch.cat([diff, *boxes, v1, v2], 1).contiguous(memory_format=torch.channels_last_3d)
         hid = self.conv_in(feat)
@@ -264,7 +300,7 @@ class SweepDecoder(nn.Module):
         The pair keeps its learned blend logit; further sources start strongly down-weighted."""
         n = c.shape[1]
         mean = (v * c).sum(1, keepdim=True) / v.sum(1, keepdim=True).clamp(min=1e-6)
-        dev = ((c - mean).abs().mean(2, keepdim=True) * v)  # (B, n, 1, D, h, w)
+        dev = (c - mean).abs().mean(2, keepdim=True) * v  # (B, n, 1, D, h, w)
         flag = torch.zeros_like(dev)
         flag[:, :2] = 1
         per = torch.cat([hid[:, None].expand(-1, n, -1, -1, -1, -1), dev, v, flag], 2)
@@ -279,8 +315,8 @@ class SweepDecoder(nn.Module):
         """Colour, gate and confidence of a batch of volumes. x: (B, 4n, D + 1, h, w); ctx: (B, 512)."""
         b, ch, d1, h, w = x.shape
         n = ch // 4
-        c = x[:, :3 * n].reshape(b, n, 3, d1, h, w)
-        v = x[:, 3 * n:].reshape(b, n, 1, d1, h, w)
+        c = x[:, : 3 * n].reshape(b, n, 3, d1, h, w)
+        v = x[:, 3 * n :].reshape(b, n, 1, d1, h, w)
         p, colour, cost = self._depth_and_colour(c[..., :-1, :, :], v[..., :-1, :, :], ctx)
         out = (p * colour).sum(2)  # (B, 3, h, w)
         cover = (p * (v[..., :-1, :, :].sum(1) > 0).to(x.dtype)).sum(2)  # how much of p saw a source
@@ -312,8 +348,9 @@ class Decoded:
 AGREEMENT_SCALE = 0.1  # a mean absolute colour difference (0..1) at which agreement falls to 1/e
 
 
-def confidence_map(p: torch.Tensor, exp_cost: torch.Tensor, spread: torch.Tensor, plain_diff: torch.Tensor,
-                   gate: torch.Tensor) -> torch.Tensor:
+def confidence_map(
+    p: torch.Tensor, exp_cost: torch.Tensor, spread: torch.Tensor, plain_diff: torch.Tensor, gate: torch.Tensor
+) -> torch.Tensor:
     """Per-pixel confidence in [0, 1]. Where the depth-resolved colour is used (gate g): the depth's
     certainty times the sources' agreement at that depth, exp(-expected matching cost / AGREEMENT_SCALE);
     the certainty is the peakedness of the depth distribution (1 - entropy / log D), raised towards 1
@@ -348,16 +385,33 @@ def _volume(sources: "Sources", queries: "Queries", b: int, crop: "Crop") -> tor
     """:func:`sweep_volume` of query b's source set for its crop (y0, x0, h, w). -> (8, D + 1, h, w)."""
     y0, x0, h, w = crop
     s = list(queries.sets[b])
-    plain = None if queries.aligned is None else queries.aligned[b][:, :, y0:y0 + h, x0:x0 + w]
-    return sweep_volume(sources.images[s], sources.K[s], sources.w2c[s], queries.crop_camera(b, crop),
-                        queries.w2c[b], sources.depths, (h, w), plain)
+    plain = None if queries.aligned is None else queries.aligned[b][:, :, y0 : y0 + h, x0 : x0 + w]
+    return sweep_volume(
+        sources.images[s],
+        sources.K[s],
+        sources.w2c[s],
+        queries.crop_camera(b, crop),
+        queries.w2c[b],
+        sources.depths,
+        (h, w),
+        plain,
+    )
 
 
-def build_decoder(name: str, channels: int = 8, fc_hw: tuple[int, int] = (32, 32), windows=(5,),
-                  extra_layers: int = 0, gate: bool = True, gate_init: float = 0.0, n_sources: int = 2) -> nn.Module:
+def build_decoder(
+    name: str,
+    channels: int = 8,
+    fc_hw: tuple[int, int] = (32, 32),
+    windows=(5,),
+    extra_layers: int = 0,
+    gate: bool = True,
+    gate_init: float = 0.0,
+    n_sources: int = 2,
+) -> nn.Module:
     if name == "sweep":
-        return SweepDecoder(channels, windows=windows, extra_layers=extra_layers, gate=gate, gate_init=gate_init,
-                            n_sources=n_sources)
+        return SweepDecoder(
+            channels, windows=windows, extra_layers=extra_layers, gate=gate, gate_init=gate_init, n_sources=n_sources
+        )
     if name == "fc":
         return FCDecoder(fc_hw)
     raise ValueError(f"unknown decoder {name!r}; choose one of {', '.join(DECODERS)}")

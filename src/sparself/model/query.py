@@ -19,11 +19,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ..errors import InputError
-from ..geometry import Pose
-from ..scene import Scene
-from ..warp import flow_pair
-from .cnn_lstm import CNNLSTM, PoseNorm
+from sparself.capture.scene import Scene
+from sparself.core.errors import InputError
+from sparself.core.geometry import Pose
+from sparself.core.warp import flow_pair
+from sparself.model.cnn_lstm import CNNLSTM, PoseNorm
 
 Crop = tuple[int, int, int, int]  # (y0, x0, h, w) in pixels of the query's image
 
@@ -41,8 +41,9 @@ def bracket(positions: np.ndarray, q: float, exclude: int = -1) -> tuple[int, in
     return (after[0], after[1]) if not before else (before[-1], before[-2])
 
 
-def query_pair(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray,
-               exclude: int = -1) -> tuple[tuple[int, int], float]:
+def query_pair(
+    positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, exclude: int = -1
+) -> tuple[tuple[int, int], float]:
     """A query's two sources and its fraction t between them (0 at the first, 1 at the second).
 
     Within the sequence: the bracketing pair (:func:`bracket`) and t from the sequence positions. Beyond
@@ -63,16 +64,18 @@ def query_pair(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: n
     return pair, bracket_fraction(positions, pair, q)
 
 
-def source_set(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2,
-               exclude: int = -1) -> tuple[int, ...]:
+def source_set(
+    positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2, exclude: int = -1
+) -> tuple[int, ...]:
     """A query's k sources: its pair (:func:`query_pair`: the bracketing one, or the last and first of a
     closed capture) first, then the k - 2 others whose camera centres are nearest to the query's (never
     ``exclude``, the target). centres (S, 3)."""
     return query_sources(positions, centres, q, q_centre, k, exclude)[0]
 
 
-def query_sources(positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2,
-                  exclude: int = -1) -> tuple[tuple[int, ...], float]:
+def query_sources(
+    positions: np.ndarray, centres: np.ndarray, q: float, q_centre: np.ndarray, k: int = 2, exclude: int = -1
+) -> tuple[tuple[int, ...], float]:
     """A query's :func:`source_set` and its fraction t between the set's first two (:func:`query_pair`),
     from one :func:`query_pair`."""
     pair, t = query_pair(positions, centres, q, q_centre, exclude)
@@ -80,7 +83,7 @@ def query_sources(positions: np.ndarray, centres: np.ndarray, q: float, q_centre
         return pair, t
     dist = np.linalg.norm(np.asarray(centres, np.float64) - np.asarray(q_centre, np.float64), axis=1)
     rest = [int(i) for i in np.argsort(dist, kind="stable") if int(i) != exclude and int(i) not in pair]
-    return tuple(pair) + tuple(rest[:k - 2]), t
+    return tuple(pair) + tuple(rest[: k - 2]), t
 
 
 def camera_centres(w2c: torch.Tensor) -> np.ndarray:
@@ -133,11 +136,14 @@ class Sources:
         """The scene's frames (one image size; ValueError otherwise) as tensors at their cameras' size."""
         order = np.argsort([f.index for f in scene.frames], kind="stable")
         imgs = np.stack([scene.load(int(i)) for i in order])
-        return cls(images=torch.from_numpy(imgs).permute(0, 3, 1, 2).contiguous(),
-                   K=torch.tensor(np.stack([scene.camera(int(i)).K for i in order]), dtype=torch.float32),
-                   w2c=torch.tensor(np.stack([scene.frames[int(i)].pose.w2c() for i in order]), dtype=torch.float32),
-                   index=np.array([scene.frames[int(i)].index for i in order], dtype=np.float64),
-                   poses=[scene.frames[int(i)].pose for i in order], order=order)
+        return cls(
+            images=torch.from_numpy(imgs).permute(0, 3, 1, 2).contiguous(),
+            K=torch.tensor(np.stack([scene.camera(int(i)).K for i in order]), dtype=torch.float32),
+            w2c=torch.tensor(np.stack([scene.frames[int(i)].pose.w2c() for i in order]), dtype=torch.float32),
+            index=np.array([scene.frames[int(i)].index for i in order], dtype=np.float64),
+            poses=[scene.frames[int(i)].pose for i in order],
+            order=order,
+        )
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
@@ -161,8 +167,11 @@ class Sources:
     def posed(self, norm: PoseNorm, depths: np.ndarray | None = None) -> "Sources":
         """With the pose vectors of ``norm`` and the sweep planes ``depths`` (on the sources' device)."""
         dev = self.device
-        return replace(self, vectors=torch.from_numpy(norm.vectors(self.poses)).to(dev),
-                       depths=None if depths is None else torch.tensor(depths, dtype=torch.float32, device=dev))
+        return replace(
+            self,
+            vectors=torch.from_numpy(norm.vectors(self.poses)).to(dev),
+            depths=None if depths is None else torch.tensor(depths, dtype=torch.float32, device=dev),
+        )
 
 
 @dataclass
@@ -191,12 +200,18 @@ class Queries:
     def select(self, idx) -> "Queries":
         """The queries at positions ``idx`` (a list of ints), in that order."""
         idx = np.asarray(idx)
-        return replace(self, K=self.K[idx], w2c=self.w2c[idx], vectors=self.vectors[idx],
-                       positions=self.positions[idx], n_before=self.n_before[idx],
-                       sets=[self.sets[int(i)] for i in idx],
-                       aligned=None if self.aligned is None else self.aligned[idx],
-                       crops=None if self.crops is None else [self.crops[int(i)] for i in idx],
-                       fractions=None if self.fractions is None else self.fractions[idx])
+        return replace(
+            self,
+            K=self.K[idx],
+            w2c=self.w2c[idx],
+            vectors=self.vectors[idx],
+            positions=self.positions[idx],
+            n_before=self.n_before[idx],
+            sets=[self.sets[int(i)] for i in idx],
+            aligned=None if self.aligned is None else self.aligned[idx],
+            crops=None if self.crops is None else [self.crops[int(i)] for i in idx],
+            fractions=None if self.fractions is None else self.fractions[idx],
+        )
 
     def cropped(self, crops: list[Crop]) -> "Queries":
         return replace(self, crops=list(crops))
@@ -215,13 +230,21 @@ def leave_one_out(sources: Sources, hw: tuple[int, int] | None = None, k: int = 
     sources')."""
     pos, centres = sources.positions, camera_centres(sources.w2c)
     found = [query_sources(pos, centres, float(pos[t]), centres[t], k, exclude=t) for t in range(len(pos))]
-    return Queries(K=sources.K, w2c=sources.w2c, vectors=sources.vectors, positions=pos,
-                   n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device), sets=[s for s, _ in found],
-                   hw=hw or sources.hw, fractions=np.array([t for _, t in found], np.float64))
+    return Queries(
+        K=sources.K,
+        w2c=sources.w2c,
+        vectors=sources.vectors,
+        positions=pos,
+        n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device),
+        sets=[s for s, _ in found],
+        hw=hw or sources.hw,
+        fractions=np.array([t for _, t in found], np.float64),
+    )
 
 
-def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.ndarray, index,
-                  hw: tuple[int, int], k: int = 2) -> Queries:
+def novel_queries(
+    sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.ndarray, index, hw: tuple[int, int], k: int = 2
+) -> Queries:
     """Queries at new poses with fractional frame indices ``index`` among the sources' indices; each
     query step sits after every source at or before it, and its source set is its k sources
     (:func:`source_set`). K (T, 3, 3), w2c (T, 4, 4), vectors (T, 7) arrays."""
@@ -232,11 +255,16 @@ def novel_queries(sources: Sources, K: np.ndarray, w2c: np.ndarray, vectors: np.
     w2c_t = torch.tensor(w2c, dtype=torch.float32, device=dev)
     centres, q_centres = camera_centres(sources.w2c), camera_centres(w2c_t)
     found = [query_sources(src_pos, centres, float(q), c, k) for q, c in zip(q_pos, q_centres)]
-    return Queries(K=torch.tensor(K, dtype=torch.float32, device=dev), w2c=w2c_t,
-                   vectors=torch.from_numpy(vectors).to(dev), positions=q_pos,
-                   n_before=torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev),
-                   sets=[s for s, _ in found], hw=hw,
-                   fractions=np.array([t for _, t in found], np.float64))
+    return Queries(
+        K=torch.tensor(K, dtype=torch.float32, device=dev),
+        w2c=w2c_t,
+        vectors=torch.from_numpy(vectors).to(dev),
+        positions=q_pos,
+        n_before=torch.as_tensor(np.searchsorted(src_pos, q_pos, side="right"), device=dev),
+        sets=[s for s, _ in found],
+        hw=hw,
+        fractions=np.array([t for _, t in found], np.float64),
+    )
 
 
 def flow_aligned(sources: Sources, queries: Queries) -> Queries:

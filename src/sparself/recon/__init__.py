@@ -12,9 +12,9 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..errors import ConfigError
-from ..geometry import Pose
-from ..scene import Camera, Scene
+from sparself.capture.scene import Camera, Scene
+from sparself.core.errors import ConfigError
+from sparself.core.geometry import Pose
 
 
 @runtime_checkable
@@ -42,7 +42,7 @@ def _lazy(module: str, attr: str = "fit") -> Callable[..., Renderer]:
 def fit_3dgs(scene: Scene, **cfg) -> Renderer:
     """3D Gaussian splatting: gsplat on CUDA when it can run here, else the plain-torch CPU path
     (``recon.splat``). The renderer's ``backend`` says which ran."""
-    from .gsplat import available
+    from sparself.recon.gsplat import available
 
     return _lazy("gsplat" if available()[0] else "splat")(scene, **cfg)
 

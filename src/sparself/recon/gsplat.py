@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import SparselfError
-from ..geometry import Pose
-from ..scene import MIN_POINTS, Camera, Scene
+from sparself.capture.scene import MIN_POINTS, Camera, Scene
+from sparself.core.errors import SparselfError
+from sparself.core.geometry import Pose
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +80,7 @@ class GsplatRenderer:
         gsplat, torch = _require_gsplat()
         dev = self.params["means"].device
         with torch.no_grad():
-            img, _, _ = _rasterize(gsplat, torch, self.params, [pose], [camera], self.sh_degree,
-                                   self.background, dev)
+            img, _, _ = _rasterize(gsplat, torch, self.params, [pose], [camera], self.sh_degree, self.background, dev)
         return img[0].clamp(0, 1).cpu().numpy().astype(np.float32)
 
 
@@ -141,7 +140,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     Raises SparselfError (before any work) when gsplat or CUDA is missing.
     """
     gsplat, torch = _require_gsplat()
-    from .nerf import prepare_fit
+    from sparself.recon.nerf import prepare_fit
 
     scene, cfg = prepare_fit(scene, GsplatConfig, config, overrides, "gsplat")
     from tqdm.auto import tqdm
@@ -151,10 +150,15 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     rng = np.random.default_rng(cfg.seed)
     params = _init_params(torch, scene, cfg, rng, dev)
     scene_scale = float(scene.scale())
-    lrs = {"means": cfg.lr_means * scene_scale, "scales": cfg.lr_scales, "quats": cfg.lr_quats,
-           "opacities": cfg.lr_opacities, "sh0": cfg.lr_sh0, "shN": cfg.lr_shN}
-    optimizers = {k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15)
-                  for k, lr in lrs.items()}
+    lrs = {
+        "means": cfg.lr_means * scene_scale,
+        "scales": cfg.lr_scales,
+        "quats": cfg.lr_quats,
+        "opacities": cfg.lr_opacities,
+        "sh0": cfg.lr_sh0,
+        "shN": cfg.lr_shN,
+    }
+    optimizers = {k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15) for k, lr in lrs.items()}
     strategy = state = None
     if cfg.densify:
         try:
@@ -173,8 +177,9 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     for step in tqdm(range(cfg.steps), desc="gsplat fit", disable=not cfg.progress, leave=False):
         i = int(rng.integers(len(scene)))
         sh_deg = min(step // cfg.sh_increase_every, cfg.sh_degree)
-        render, _, info = _rasterize(gsplat, torch, params, [scene.frames[i].pose], [scene.camera(i)],
-                                     sh_deg, background, dev)
+        render, _, info = _rasterize(
+            gsplat, torch, params, [scene.frames[i].pose], [scene.camera(i)], sh_deg, background, dev
+        )
         if strategy is not None:
             strategy.step_pre_backward(params, optimizers, state, step, info)
         loss = photometric_loss(torch, render, images[i][None], cfg.ssim_lambda, weights[i])
@@ -197,20 +202,26 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
     # initial scale: distance to the 3 nearest neighbours (log), as in the reference implementation
     with torch.no_grad():  # on up to 4096 sampled points, in chunks: a full cdist would not fit in memory
         probe = means[torch.randperm(len(means), device=dev)[:4096]]
-        knn = torch.cat([torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
-                         for c in probe.split(256)]).clamp_min(1e-7)
+        knn = torch.cat(
+            [
+                torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
+                for c in probe.split(256)
+            ]
+        ).clamp_min(1e-7)
         s0 = float(torch.log(knn.mean()))
     n = len(means)
     sh0 = (torch.tensor(cols, device=dev) - 0.5) / 0.28209479177387814
     K = (cfg.sh_degree + 1) ** 2
-    params = torch.nn.ParameterDict({
-        "means": torch.nn.Parameter(means),
-        "scales": torch.nn.Parameter(torch.full((n, 3), s0, device=dev)),
-        "quats": torch.nn.Parameter(torch.nn.functional.normalize(torch.randn(n, 4, device=dev), dim=-1)),
-        "opacities": torch.nn.Parameter(torch.logit(torch.full((n,), 0.1, device=dev))),
-        "sh0": torch.nn.Parameter(sh0[:, None, :]),
-        "shN": torch.nn.Parameter(torch.zeros(n, K - 1, 3, device=dev)),
-    })
+    params = torch.nn.ParameterDict(
+        {
+            "means": torch.nn.Parameter(means),
+            "scales": torch.nn.Parameter(torch.full((n, 3), s0, device=dev)),
+            "quats": torch.nn.Parameter(torch.nn.functional.normalize(torch.randn(n, 4, device=dev), dim=-1)),
+            "opacities": torch.nn.Parameter(torch.logit(torch.full((n,), 0.1, device=dev))),
+            "sh0": torch.nn.Parameter(sh0[:, None, :]),
+            "shN": torch.nn.Parameter(torch.zeros(n, K - 1, 3, device=dev)),
+        }
+    )
     return params
 
 
@@ -238,7 +249,7 @@ def ssim_map(torch, a, b, window: int = 11, sigma: float = 1.5):
 
     x = a.permute(0, 3, 1, 2)
     y = b.permute(0, 3, 1, 2)
-    g = torch.exp(-((torch.arange(window, device=a.device) - window // 2) ** 2) / (2 * sigma ** 2))
+    g = torch.exp(-((torch.arange(window, device=a.device) - window // 2) ** 2) / (2 * sigma**2))
     g = (g / g.sum()).float()
     k = (g[:, None] * g[None, :]).expand(3, 1, window, window).contiguous()
 
@@ -246,9 +257,9 @@ def ssim_map(torch, a, b, window: int = 11, sigma: float = 1.5):
         return F.conv2d(z, k, padding=window // 2, groups=3)
 
     mx, my = blur(x), blur(y)
-    sxx, syy, sxy = blur(x * x) - mx ** 2, blur(y * y) - my ** 2, blur(x * y) - mx * my
-    c1, c2 = 0.01 ** 2, 0.03 ** 2
-    return ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx ** 2 + my ** 2 + c1) * (sxx + syy + c2))
+    sxx, syy, sxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
+    c1, c2 = 0.01**2, 0.03**2
+    return ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2))
 
 
 __all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]

@@ -33,9 +33,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..geometry import Pose, inverse_depth_planes
-from ..scene import Camera, Scene, resize_image
-from ..warp import homography_warp, plane_homographies, plane_sweep
+from sparself.capture.images import resize_image
+from sparself.capture.scene import Camera, Scene
+from sparself.core.geometry import Pose, inverse_depth_planes
+from sparself.core.warp import homography_warp, plane_homographies, plane_sweep
 
 log = logging.getLogger(__name__)
 MIN_BLEND_WEIGHT = 1e-3  # the least a pixel of a weighted view counts in the blend of MPIs
@@ -87,8 +88,9 @@ class Mpi:
     weight: torch.Tensor | None = None
 
 
-def build_mpi(images: torch.Tensor, Ks: np.ndarray, w2cs: np.ndarray, pose: Pose, depths: np.ndarray,
-              cfg: MpiConfig) -> Mpi:
+def build_mpi(
+    images: torch.Tensor, Ks: np.ndarray, w2cs: np.ndarray, pose: Pose, depths: np.ndarray, cfg: MpiConfig
+) -> Mpi:
     """The MPI of view 0 of a neighbourhood.
 
     images: (S, 3, H, W), view 0 the reference; Ks: (S, 3, 3); w2cs: (S, 4, 4); depths: (D,) near first.
@@ -118,9 +120,13 @@ def render_mpi(mpi: Mpi, pose: Pose, K: np.ndarray, out_hw: tuple[int, int]) -> 
     sample counts its reference pixel's weight in both (so the blend of MPIs trusts confident pixels more).
     """
     # p_target ~ H p_ref for the plane z = depth of the reference camera; the warp needs target -> ref
-    H = plane_homographies(torch.from_numpy(K)[None], torch.from_numpy(pose.w2c())[None],
-                           torch.from_numpy(mpi.K), torch.from_numpy(mpi.pose.w2c()),
-                           torch.from_numpy(mpi.depths))[0]
+    H = plane_homographies(
+        torch.from_numpy(K)[None],
+        torch.from_numpy(pose.w2c())[None],
+        torch.from_numpy(mpi.K),
+        torch.from_numpy(mpi.pose.w2c()),
+        torch.from_numpy(mpi.depths),
+    )[0]
     planes = mpi.rgba if mpi.weight is None else torch.cat([mpi.rgba, mpi.weight.expand(len(mpi.rgba), 1, -1, -1)], 1)
     warped, _ = homography_warp(planes, torch.linalg.inv(H).float(), out_hw)  # (D, 4 or 5, H, W), zero outside
     rgb, a = warped[:, :3], warped[:, 3:4]

@@ -27,9 +27,9 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from ..errors import ConfigError, InputError
-from ..geometry import Pose
-from ..scene import Camera, Scene
+from sparself.capture.scene import Camera, Scene
+from sparself.core.errors import ConfigError, InputError
+from sparself.core.geometry import Pose
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,7 @@ class NerfConfig:
 
 
 # ---- geometry helpers ---------------------------------------------------------------------------
+
 
 def pixel_rays(pose: Pose, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Rays through every pixel centre of ``camera`` at ``pose``.
@@ -116,6 +117,7 @@ def contract(x: torch.Tensor) -> torch.Tensor:
 
 # ---- the field ----------------------------------------------------------------------------------
 
+
 class _Field(torch.nn.Module):
     """Multi-resolution dense grids + tiny MLP: contracted point (N, 3) in [-2, 2]^3 and unit view
     direction (N, 3) -> density (N,) >= 0 and colour (N, 3) in [0, 1]."""
@@ -136,8 +138,9 @@ class _Field(torch.nn.Module):
 
     def features(self, xc: torch.Tensor) -> torch.Tensor:
         g = (xc / 2.0).view(1, -1, 1, 1, 3)  # grid_sample wants (x, y, z) in [-1, 1]
-        feats = [F.grid_sample(grid, g, mode="bilinear", align_corners=True).view(grid.shape[1], -1)
-                 for grid in self.grids]
+        feats = [
+            F.grid_sample(grid, g, mode="bilinear", align_corners=True).view(grid.shape[1], -1) for grid in self.grids
+        ]
         return torch.cat(feats, 0).T
 
     def forward(self, xc: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -149,15 +152,26 @@ class _Field(torch.nn.Module):
     def tv(self) -> torch.Tensor:
         loss = 0.0
         for g in self.grids:
-            loss = loss + (g[..., 1:, :, :] - g[..., :-1, :, :]).pow(2).mean() \
-                + (g[..., :, 1:, :] - g[..., :, :-1, :]).pow(2).mean() \
+            loss = (
+                loss
+                + (g[..., 1:, :, :] - g[..., :-1, :, :]).pow(2).mean()
+                + (g[..., :, 1:, :] - g[..., :, :-1, :]).pow(2).mean()
                 + (g[..., :, :, 1:] - g[..., :, :, :-1]).pow(2).mean()
+            )
         return loss
 
 
-def _render_rays(field_: _Field, o: torch.Tensor, d: torch.Tensor, near: float, far: float,
-                 n_samples: int, centre: torch.Tensor, radius: float,
-                 jitter: torch.Generator | None) -> torch.Tensor:
+def _render_rays(
+    field_: _Field,
+    o: torch.Tensor,
+    d: torch.Tensor,
+    near: float,
+    far: float,
+    n_samples: int,
+    centre: torch.Tensor,
+    radius: float,
+    jitter: torch.Generator | None,
+) -> torch.Tensor:
     """Volume-render rays o, d (R, 3) -> colours (R, 3). Samples log-uniform in depth in [near, far]."""
     R, kw = o.shape[0], dict(dtype=o.dtype, device=o.device)
     u = (torch.arange(n_samples, **kw) + 0.5).expand(R, n_samples)
@@ -183,8 +197,16 @@ def _render_rays(field_: _Field, o: torch.Tensor, d: torch.Tensor, near: float, 
 class NerfRenderer:
     """A fitted compact NeRF. ``render(pose, camera) -> (H, W, 3) float32 in [0, 1]``."""
 
-    def __init__(self, field_: _Field, centre: np.ndarray, radius: float, near: float, far: float,
-                 config: NerfConfig, history: list[float]):
+    def __init__(
+        self,
+        field_: _Field,
+        centre: np.ndarray,
+        radius: float,
+        near: float,
+        far: float,
+        config: NerfConfig,
+        history: list[float],
+    ):
         self.field = field_
         self.centre = centre
         self.radius = radius
@@ -201,8 +223,19 @@ class NerfRenderer:
         centre = torch.from_numpy(self.centre).float().to(dev)
         out = []
         for i in range(0, len(o_t), self.config.chunk):
-            out.append(_render_rays(self.field, o_t[i:i + self.config.chunk], d_t[i:i + self.config.chunk],
-                                    self.near, self.far, self.config.n_samples, centre, self.radius, None))
+            out.append(
+                _render_rays(
+                    self.field,
+                    o_t[i : i + self.config.chunk],
+                    d_t[i : i + self.config.chunk],
+                    self.near,
+                    self.far,
+                    self.config.n_samples,
+                    centre,
+                    self.radius,
+                    None,
+                )
+            )
         img = torch.cat(out).view(camera.height, camera.width, 3).clamp(0, 1)
         return img.cpu().numpy().astype(np.float32)
 
@@ -273,10 +306,17 @@ def _training_rays(scene: Scene) -> tuple[torch.Tensor, torch.Tensor, torch.Tens
         weights.append(scene.pixel_weight(i))
     w_all = None
     if any(w is not None for w in weights):
-        w_all = torch.from_numpy(np.concatenate([np.ones(len(o), np.float32) if w is None else w.reshape(-1)
-                                                 for o, w in zip(origins, weights)])).float()
-    return (torch.from_numpy(np.concatenate(origins)).float(), torch.from_numpy(np.concatenate(dirs)).float(),
-            torch.from_numpy(np.concatenate(colors)).float(), w_all)
+        w_all = torch.from_numpy(
+            np.concatenate(
+                [np.ones(len(o), np.float32) if w is None else w.reshape(-1) for o, w in zip(origins, weights)]
+            )
+        ).float()
+    return (
+        torch.from_numpy(np.concatenate(origins)).float(),
+        torch.from_numpy(np.concatenate(dirs)).float(),
+        torch.from_numpy(np.concatenate(colors)).float(),
+        w_all,
+    )
 
 
 def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
@@ -297,11 +337,18 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
         # start the background at the mean image colour (of the pixels that count): rays that leave the scene see it
         mean = c_all.mean(0) if w_all is None else (w_all[:, None] * c_all).sum(0) / w_all.sum().clamp_min(1e-12)
         field_.background.copy_(torch.logit(mean.clamp(0.02, 0.98)))
-    opt = torch.optim.Adam([
-        {"params": list(field_.grids.parameters()), "lr": cfg.lr_grid},
-        {"params": list(field_.sigma_net.parameters()) + list(field_.color_net.parameters())
-         + [field_.background], "lr": cfg.lr_mlp},
-    ], eps=1e-15)
+    opt = torch.optim.Adam(
+        [
+            {"params": list(field_.grids.parameters()), "lr": cfg.lr_grid},
+            {
+                "params": list(field_.sigma_net.parameters())
+                + list(field_.color_net.parameters())
+                + [field_.background],
+                "lr": cfg.lr_mlp,
+            },
+        ],
+        eps=1e-15,
+    )
     gamma = cfg.lr_decay ** (1.0 / max(cfg.steps, 1))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
     history: list[float] = []
@@ -316,7 +363,13 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
         opt.step()
         sched.step()
         history.append(float(loss.detach()))
-    log.info("nerf: %d steps, final loss %.4f (near %.3g, far %.3g, radius %.3g)",
-             cfg.steps, history[-1] if history else float("nan"), near, far, radius)
+    log.info(
+        "nerf: %d steps, final loss %.4f (near %.3g, far %.3g, radius %.3g)",
+        cfg.steps,
+        history[-1] if history else float("nan"),
+        near,
+        far,
+        radius,
+    )
     field_.eval()
     return NerfRenderer(field_, centre, radius, near, far, cfg, history)

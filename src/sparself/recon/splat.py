@@ -30,8 +30,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from ..geometry import Pose
-from ..scene import MIN_POINTS, Camera, Scene
+from sparself.capture.scene import MIN_POINTS, Camera, Scene
+from sparself.core.geometry import Pose
 
 log = logging.getLogger(__name__)
 
@@ -124,11 +124,20 @@ class Projected:
 def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     """(N, 4) wxyz, any norm -> (N, 3, 3) rotation matrices."""
     w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).view(-1, 3, 3)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).view(-1, 3, 3)
 
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
@@ -140,8 +149,7 @@ def sh_colors(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor
     return (c + 0.5).clamp_min(0.0)
 
 
-def project(g: Gaussians, w2c: torch.Tensor, K: torch.Tensor, width: int, height: int,
-            sh_degree: int = 1) -> Projected:
+def project(g: Gaussians, w2c: torch.Tensor, K: torch.Tensor, width: int, height: int, sh_degree: int = 1) -> Projected:
     """EWA projection of the Gaussians into one pinhole camera (w2c (4, 4), K (3, 3)), depth sorted."""
     R, t = w2c[:3, :3], w2c[:3, 3]
     pc = g.means @ R.T + t
@@ -167,15 +175,21 @@ def project(g: Gaussians, w2c: torch.Tensor, K: torch.Tensor, width: int, height
         extent = torch.sqrt(2.0 * torch.log((opac / ALPHA_MIN).clamp_min(1.0)))
         radii = extent * torch.sqrt(lam.clamp_min(0.0))
         m2 = means2d.detach()
-        keep = (z > NEAR_PLANE) & (det > 0) & (radii > 0) & (m2[:, 0] + radii > 0) & (m2[:, 0] - radii < width) \
-            & (m2[:, 1] + radii > 0) & (m2[:, 1] - radii < height)
+        keep = (
+            (z > NEAR_PLANE)
+            & (det > 0)
+            & (radii > 0)
+            & (m2[:, 0] + radii > 0)
+            & (m2[:, 0] - radii < width)
+            & (m2[:, 1] + radii > 0)
+            & (m2[:, 1] - radii < height)
+        )
         ids = torch.nonzero(keep).squeeze(1)
         ids = ids[torch.argsort(z[ids], stable=True)]
     campos = -R.T @ t
     dirs = torch.nn.functional.normalize(g.means[ids] - campos, dim=-1)
     conics = torch.stack([c[ids], -b[ids], a[ids]], -1) / det[ids, None]
-    return Projected(means2d[ids], conics, opac[ids], sh_colors(g.sh[ids], dirs, sh_degree), z[ids],
-                     radii[ids], ids)
+    return Projected(means2d[ids], conics, opac[ids], sh_colors(g.sh[ids], dirs, sh_degree), z[ids], radii[ids], ids)
 
 
 def _alpha(p_mean, p_conic, p_opac, px, py):
@@ -186,8 +200,9 @@ def _alpha(p_mean, p_conic, p_opac, px, py):
     return torch.where((sigma >= 0) & (alpha >= ALPHA_MIN), alpha, torch.zeros_like(alpha))
 
 
-def rasterize_reference(p: Projected, width: int, height: int,
-                        background: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def rasterize_reference(
+    p: Projected, width: int, height: int, background: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The plain definition: one Gaussian at a time, front to back, over every pixel.
 
     -> (image (H, W, 3), alpha (H, W))."""
@@ -242,8 +257,9 @@ def rasterize(p: Projected, width: int, height: int, background: torch.Tensor) -
     px = (pix % width).to(dt) + 0.5
     py = torch.div(pix, width, rounding_mode="floor").to(dt) + 0.5
     # index_select, not [gauss]: its backward (index_add) is deterministic on CPU, accumulate-indexing is not
-    alpha = _alpha(p.means2d.index_select(0, gauss), p.conics.index_select(0, gauss),
-                   p.opacities.index_select(0, gauss), px, py)
+    alpha = _alpha(
+        p.means2d.index_select(0, gauss), p.conics.index_select(0, gauss), p.opacities.index_select(0, gauss), px, py
+    )
     log1m = torch.log1p(-alpha).double()  # transmittance in log space: a segmented cumsum per pixel
     incl = torch.cumsum(log1m, 0)
     first = torch.ones_like(pix, dtype=torch.bool)
@@ -261,8 +277,9 @@ def rasterize(p: Projected, width: int, height: int, background: torch.Tensor) -
     return (C + T[:, None] * background).view(height, width, 3), (1 - T).view(height, width)
 
 
-def render_gaussians(g: Gaussians, pose: Pose, camera: Camera, background: torch.Tensor, sh_degree: int = 1,
-                     reference: bool = False) -> tuple[torch.Tensor, Projected]:
+def render_gaussians(
+    g: Gaussians, pose: Pose, camera: Camera, background: torch.Tensor, sh_degree: int = 1, reference: bool = False
+) -> tuple[torch.Tensor, Projected]:
     """(H, W, 3) image of the Gaussians (differentiable) and their projection."""
     dt = g.means.dtype
     w2c = torch.as_tensor(pose.w2c(), dtype=dt)
@@ -274,6 +291,7 @@ def render_gaussians(g: Gaussians, pose: Pose, camera: Camera, background: torch
 
 
 # ---- fitting ------------------------------------------------------------------------------------
+
 
 class SplatRenderer:
     """Fitted Gaussians. ``render(pose, camera) -> (H, W, 3) float32 in [0, 1]``; ``backend`` names the path."""
@@ -316,7 +334,7 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
     """Gaussians at the SfM points (at most ``init_points``, coloured from the training views), topped up to
     ``init_points`` with random points in the cameras' depth-bounded frusta when there are fewer (all random
     without SfM points); isotropic, scale = mean distance to 3 neighbours."""
-    from .gsplat import frustum_points
+    from sparself.recon.gsplat import frustum_points
 
     pts = np.zeros((0, 3))
     if scene.points is not None and len(scene.points) >= MIN_POINTS:
@@ -330,14 +348,19 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
         pts = np.concatenate([pts, frustum_points(scene, cfg.init_points - len(pts), rng).astype(np.float32)])
     cols = _point_colors(scene, pts)
     means = torch.tensor(pts, dtype=torch.float32)
-    knn = torch.cat([torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1)
-                     for c in means.split(1024)])  # in chunks: a full distance matrix grows as N^2
+    knn = torch.cat(
+        [torch.cdist(c, means).topk(min(4, len(means)), largest=False).values[:, 1:].mean(1) for c in means.split(1024)]
+    )  # in chunks: a full distance matrix grows as N^2
     n = len(means)
     sh = torch.zeros(n, 4 if cfg.sh_degree else 1, 3)
     sh[:, 0] = (torch.from_numpy(cols) - 0.5) / SH_C0
-    return Gaussians(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                     torch.log(knn.clamp_min(1e-7))[:, None].repeat(1, 3),
-                     torch.logit(torch.full((n,), 0.1)), sh)
+    return Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.log(knn.clamp_min(1e-7))[:, None].repeat(1, 3),
+        torch.logit(torch.full((n,), 0.1)),
+        sh,
+    )
 
 
 _FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh")
@@ -346,8 +369,13 @@ _FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh")
 def _make_optimizer(g: Gaussians, cfg: SplatConfig, extent: float) -> torch.optim.Adam:
     for name in _FIELDS:
         getattr(g, name).requires_grad_(True)
-    lrs = {"means": cfg.lr_means * extent, "quats": cfg.lr_quats, "log_scales": cfg.lr_scales,
-           "opacity_logits": cfg.lr_opacities, "sh": cfg.lr_sh0}
+    lrs = {
+        "means": cfg.lr_means * extent,
+        "quats": cfg.lr_quats,
+        "log_scales": cfg.lr_scales,
+        "opacity_logits": cfg.lr_opacities,
+        "sh": cfg.lr_sh0,
+    }
     return torch.optim.Adam([{"params": [getattr(g, k)], "lr": lr, "name": k} for k, lr in lrs.items()], eps=1e-15)
 
 
@@ -369,8 +397,9 @@ def _replace(g: Gaussians, opt: torch.optim.Adam, keep: torch.Tensor, new: dict[
     return Gaussians(**out)
 
 
-def _densify(g: Gaussians, opt, grads: torch.Tensor, cfg: SplatConfig, extent: float,
-             gen: torch.Generator) -> Gaussians:
+def _densify(
+    g: Gaussians, opt, grads: torch.Tensor, cfg: SplatConfig, extent: float, gen: torch.Generator
+) -> Gaussians:
     """Clone small high-gradient Gaussians, split large ones in two (scales / 1.6), prune faint ones."""
     with torch.no_grad():
         big = torch.exp(g.log_scales).amax(1) > cfg.dense_scale * extent
@@ -397,7 +426,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
     config: a :class:`SplatConfig`; keyword overrides replace its fields. Deterministic for ``config.seed``.
     """
-    from .nerf import at_most_threads, prepare_fit
+    from sparself.recon.nerf import at_most_threads, prepare_fit
 
     scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, "3dgs")
     cfg = dataclasses.replace(cfg, steps=max(cfg.steps, cfg.min_steps_per_view * len(scene)))
@@ -406,7 +435,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
-    from .gsplat import photometric_loss
+    from sparself.recon.gsplat import photometric_loss
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -440,7 +469,11 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
         if d0 <= step < d1 and step > 0 and step % cfg.densify_every == 0:
             g = _densify(g, opt, acc / cnt.clamp_min(1), cfg, extent, gen)
             acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
-    log.info("3dgs (cpu): %d Gaussians after %d steps, final loss %.4f", len(g), cfg.steps,
-             history[-1] if history else float("nan"))
+    log.info(
+        "3dgs (cpu): %d Gaussians after %d steps, final loss %.4f",
+        len(g),
+        cfg.steps,
+        history[-1] if history else float("nan"),
+    )
     g = Gaussians(**{k: getattr(g, k).detach() for k in _FIELDS})
     return SplatRenderer(g, cfg.sh_degree, bg, history)

@@ -1,0 +1,1 @@
+"""Capture: scenes, their files (COLMAP, LLFF, nerfstudio, Middlebury), poses from photos, sparse points."""

@@ -1,0 +1,309 @@
+"""What a densified scene carries beyond its frames, so that trainers never test on a synthesized view.
+
+* **Split.** Val/test = the real photos the user held out, else every 8th real photo in index order
+  (the first, the 9th, ...: what ``llffhold=8`` picks on the original capture). Every synthesized frame
+  is in train. Written as ``transforms.json`` lists, COLMAP-side list files and ``sparself.json``.
+* **Order that position-based loaders cannot get wrong.** gsplat (``test_every=8``), NeRF's ``llffhold=8``,
+  3DGS' ``--eval`` and nerfstudio's ``interval`` mode test the images at sorted positions 0, 8, 16, ...
+  :func:`safe_order` keeps index order but moves a synthesized frame that would land on such a position
+  behind the next real photo; names get a rank prefix (``0007_novel_0003.50.jpg``) so that sorting by
+  name gives exactly that order, for any index (negative ones included).
+* **Downscaled copies** ``images_2/4/8`` at ``(w // f, h // f)``: nerfstudio's default ``floor`` rounding
+  and gsplat's ``cam.width // factor``; LLFF reads whatever size it finds and scales the focal by 1/f.
+* **Masks** ``masks/<stem>.png`` (and ``masks_<f>``): each view's confidence (:func:`write_masks`), read back
+  by every reader as the frames' ``mask`` (:func:`checked_mask`, :func:`read_masks_beside`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from PIL import Image
+
+from sparself.capture.images import load_image, read_mask, resize_image, save_image
+from sparself.capture.scene import Scene
+from sparself.core.errors import InputError
+
+log = logging.getLogger(__name__)
+
+EVERY = 8  # the hold-out period of gsplat, NeRF/LLFF, 3DGS and nerfstudio's interval mode
+FACTORS = (2, 4, 8)
+SPARSELF_JSON = "sparself.json"
+FORMAT, VERSION = "sparself-scene", 1
+MASKS = "masks"  # nerfstudio's per-frame mask folder (mask_path); masks_<f> beside images_<f>
+MASK_FLOOR = 0.2  # confidence below which a mask pixel is 0, which nerfstudio ignores (it reads any other as valid)
+LIST_FILES = {"train": "train_list.txt", "val": "val_list.txt", "test": "test_list.txt"}  # nerfstudio colmap
+_JPEG = (".jpg", ".jpeg")
+_RANKED = re.compile(r"^\d{4,}_")
+
+
+@dataclass(frozen=True)
+class DenseInfo:
+    """Where a dense scene came from and what to write with it.
+
+    holdout: names of real frames the user held out (they become val/test); empty = every 8th real photo.
+    downscale: write ``images_2/4/8`` copies (False for large scenes).
+    """
+
+    run: str | None = None
+    plan: str | None = None
+    holdout: tuple[str, ...] = ()
+    downscale: bool = True
+
+
+@dataclass(frozen=True)
+class Split:
+    """Image names per split (as written in ``images/``) and the rule that chose val/test."""
+
+    train: tuple[str, ...]
+    val: tuple[str, ...]
+    test: tuple[str, ...]
+    rule: str
+    positional_safe: bool = True  # every 8th sorted position holds a real photo
+
+
+def n_test_positions(n: int, every: int = EVERY) -> int:
+    """How many of n sorted images a position-based loader tests: positions 0, every, 2 every, ..."""
+    return -(-n // every)
+
+
+def safe_order(synthetic: Sequence[bool], every: int = EVERY) -> list[int] | None:
+    """A written order (a permutation of the frames, given in index order) that puts a real frame at every
+    position ``p % every == 0``; None when there are too few real frames for that.
+
+    It follows index order and departs from it only where it must: a synthesized frame due at a test
+    position waits behind the next real one, and a real frame is kept back for a later test position
+    when the remaining real frames would otherwise run short. Reals and synthesized frames each keep
+    their own relative order."""
+    n = len(synthetic)
+    real = [i for i in range(n) if not synthetic[i]]
+    synth = [i for i in range(n) if synthetic[i]]
+    if len(real) < n_test_positions(n, every):
+        return None
+    out: list[int] = []
+    r = s = 0
+    for p in range(n):
+        tests_after = n_test_positions(n, every) - (p // every + 1)
+        real_next = s == len(synth) or (r < len(real) and real[r] < synth[s])
+        spare_real = len(real) - r - 1 >= tests_after
+        if p % every == 0 or (real_next and spare_real) or s == len(synth):
+            out.append(real[r])
+            r += 1
+        else:
+            out.append(synth[s])
+            s += 1
+    return out
+
+
+def rank_names(names: Sequence[str], exts: Sequence[str]) -> list[str]:
+    """``0007_<stem><ext>``: a zero-padded rank prefix, so that names sort in the given order. Names that
+    all carry such a prefix already (a dense scene written again) lose the old one first."""
+    width = max(4, len(str(len(names) - 1)))
+    stems = [str(Path(n).with_suffix("")).replace("/", "_") for n in names]
+    if stems and all(_RANKED.match(st) for st in stems):
+        stems = [_RANKED.sub("", st, count=1) for st in stems]
+    return [f"{k:0{width}d}_{st}{e}" for k, (st, e) in enumerate(zip(stems, exts))]
+
+
+def llff_ext(name: str) -> str:
+    """The extension a real photo is written with: NeRF's loader lists only ``JPG``/``jpg``/``png`` files,
+    so ``.jpeg`` becomes ``.jpg`` (same bytes) and other formats are re-encoded as ``.png``."""
+    ext = Path(name).suffix
+    if ext in (".jpg", ".JPG", ".png"):
+        return ext
+    return ".jpg" if ext.lower() in _JPEG else ".png"
+
+
+def synthetic_ext(real_names: Sequence[str]) -> str:
+    """Synthesized views in the photos' family: JPEG (quality 95) when the first photo is JPEG, else PNG
+    (gsplat and NeRF look at the first file's extension)."""
+    return ".jpg" if real_names and Path(real_names[0]).suffix.lower() in _JPEG else ".png"
+
+
+def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
+    """The dense scene as written: frames in :func:`safe_order`, renamed with rank prefixes; its split;
+    and each written frame's original name. Observations in ``meta`` follow the renaming."""
+    frames = sorted(scene.frames, key=lambda f: f.index)
+    flags = [f.synthetic for f in frames]
+    order = safe_order(flags)
+    safe = order is not None
+    if order is None:
+        log.warning(
+            "%d real and %d synthesized views: too few real photos to fill every %dth position, so "
+            "gsplat/NeRF/3DGS position-based test sets would include synthesized views; use their "
+            "split options (see the README, 'Use the dense scene with ...')",
+            flags.count(False),
+            flags.count(True),
+            EVERY,
+        )
+        order = list(range(len(frames)))
+    frames = [frames[i] for i in order]
+    real_names = [f.name for f in frames if not f.synthetic]
+    syn = synthetic_ext(real_names)
+    names = rank_names([f.name for f in frames], [syn if f.synthetic else llff_ext(f.name) for f in frames])
+    held = set(info.holdout)
+    unknown = held - set(real_names)
+    if unknown:
+        raise ValueError(f"holdout names not among the real frames: {sorted(unknown)}")
+    rule = "the real photos held out by the user"
+    if not held:
+        real_by_index = sorted((f for f in frames if not f.synthetic), key=lambda f: f.index)
+        held = {f.name for f in real_by_index[::EVERY]}
+        rule = f"every {EVERY}th real photo in capture order, from the first"
+    test = [n for f, n in zip(frames, names) if f.name in held]
+    train = tuple(n for f, n in zip(frames, names) if f.name not in held)
+    split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
+    renamed = [replace(f, name=n) for f, n in zip(frames, names)]
+    meta = dict(scene.meta)
+    obs = meta.get("observations")
+    if obs:
+        meta["observations"] = {n: obs[f.name] for f, n in zip(frames, names) if f.name in obs}
+    return replace(scene, frames=renamed, meta=meta), split, [f.name for f in frames]
+
+
+def write_split_files(folder: Path, split: Split) -> None:
+    """nerfstudio's COLMAP parser lists (``train_list.txt``, ``val_list.txt``, ``test_list.txt`` in the
+    scene folder) and 3DGS' ``sparse/0/test.txt``."""
+    for key, fname in LIST_FILES.items():
+        (Path(folder) / fname).write_text("".join(n + "\n" for n in getattr(split, key)))
+    model = Path(folder) / "sparse" / "0"
+    if model.is_dir():
+        (model / "test.txt").write_text("".join(n + "\n" for n in split.test))
+
+
+def write_sparself_json(folder: Path, scene: Scene, split: Split, sources: Sequence[str], info: DenseInfo) -> Path:
+    """``sparself.json``: format version, run and plan, each frame's flag/index/original name, the split."""
+    doc = {
+        "format": FORMAT,
+        "version": VERSION,
+        "run": info.run,
+        "plan": info.plan,
+        "test_every": EVERY,
+        "position_based_test_sets_are_real": split.positional_safe,
+        "split": {"rule": split.rule, "train": list(split.train), "val": list(split.val), "test": list(split.test)},
+        "frames": [
+            {"name": f.name, "synthetic": bool(f.synthetic), "index": float(f.index), "source_name": s}
+            for f, s in zip(scene.frames, sources)
+        ],
+    }
+    out = Path(folder) / SPARSELF_JSON
+    out.write_text(json.dumps(doc, indent=1) + "\n")
+    return out
+
+
+def read_synthetic_names(folder: Path) -> set[str] | None:
+    """Names of the synthesized frames listed in ``folder/sparself.json``; None when there is none."""
+    p = Path(folder) / SPARSELF_JSON
+    if not p.is_file():
+        return None
+    try:
+        doc = json.loads(p.read_text())
+        return {str(fr["name"]) for fr in doc["frames"] if fr.get("synthetic")}
+    except (OSError, ValueError, KeyError, TypeError):
+        log.warning("%s: unreadable; synthesized frames are not marked", p)
+        return None
+
+
+def downscaled_size(width: int, height: int, factor: int) -> tuple[int, int]:
+    """Size of an ``images_<factor>`` copy: floor division, as nerfstudio (default rounding) and gsplat
+    (``cam.width // factor``) compute the camera; at least 1 px."""
+    return max(1, width // factor), max(1, height // factor)
+
+
+def write_downscaled(folder: Path, scene: Scene, factors: Sequence[int] = FACTORS) -> None:
+    """``images_<f>/<name>`` for every frame (real and synthesized alike), from the written ``images/``."""
+    for i, f in enumerate(scene.frames):
+        img = load_image(Path(folder) / "images" / f.name, warn=False) if f.image is None else f.image
+        w, h = scene.image_size(i)
+        for k in factors:
+            dst = Path(folder) / f"images_{k}" / f.name
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            save_image(dst, resize_image(np.asarray(img, np.float32), downscaled_size(w, h, k)))
+
+
+def mark_synthetic(scene: Scene, names: set[str]) -> Scene:
+    """Frames whose name is in ``names`` get ``synthetic=True``."""
+    scene.frames = [replace(f, synthetic=True) if f.name in names else f for f in scene.frames]
+    return scene
+
+
+def mask_name(image_name: str) -> str:
+    """The mask file of an image: same stem, always ``.png`` (lossless, single channel)."""
+    return str(Path(image_name).with_suffix(".png"))
+
+
+def mask_values(confidence: np.ndarray) -> np.ndarray:
+    """8-bit mask of a confidence map (H, W) in [0, 1]: round(255 c), and 0 below :data:`MASK_FLOOR`
+    (nerfstudio ignores 0 and uses every other value; a reader that weights pixels gets c)."""
+    c = np.clip(np.nan_to_num(np.asarray(confidence, np.float32)), 0.0, 1.0)
+    m = np.maximum(np.round(c * 255.0), 1).astype(np.uint8)
+    m[c < MASK_FLOOR] = 0
+    return m
+
+
+def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None:
+    """``masks/<stem>.png`` for every frame: a synthesized frame's confidence (:func:`mask_values`), 255
+    for a real photo (nerfstudio needs a mask for every frame or none); and ``masks_<f>`` copies at the
+    ``images_<f>`` sizes (nearest neighbour, so that ignored pixels stay 0)."""
+    for i, f in enumerate(scene.frames):
+        w, h = scene.image_size(i)
+        conf = scene.confidence_map(i)  # in memory, or the mask a scene read back came with
+        conf = np.ones((h, w), np.float32) if conf is None else conf
+        mask = Image.fromarray(mask_values(conf), mode="L")
+        if mask.size != (w, h):
+            mask = mask.resize((w, h), Image.NEAREST)
+        for k, sub in [(1, MASKS)] + [(k, f"{MASKS}_{k}") for k in factors]:
+            dst = Path(folder) / sub / mask_name(f.name)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.NEAREST)).save(dst)
+
+
+# ---- reading masks back -----------------------------------------------------------------------------
+# A mask value m is read as confidence m / 255: round(255 c) / 255 for what sparself wrote, within 1/255 of c,
+# and 0 where c was below MASK_FLOOR. An all-255 mask (a real photo) is the same as no map.
+
+
+def checked_mask(path: Path, size: tuple[int, int], listed: str = "") -> Path | None:
+    """``path`` when it is a readable 8-bit mask of the image's size (W, H) that holds a value below 255;
+    None when every pixel is 255 (no map: the plain loss). InputError naming the file otherwise (``listed``
+    says where it was named). Decoded once here to check it; kept as a path, read again when used."""
+    where = f" ({listed})" if listed else ""
+    try:
+        m = read_mask(path)
+    except InputError as e:
+        raise InputError(f"{e}{where}") from None
+    if (m.shape[1], m.shape[0]) != tuple(size):
+        raise InputError(f"{path}: mask is {m.shape[1]}x{m.shape[0]} but its image is {size[0]}x{size[1]}{where}")
+    return None if m.min() == 255 else Path(path)
+
+
+def masks_folder(image_dir: Path) -> Path | None:
+    """The mask folder :func:`write_masks` lays beside an image folder: ``images`` -> ``masks``,
+    ``images_4`` -> ``masks_4``; None for a folder of another name."""
+    name = Path(image_dir).name
+    return Path(image_dir).parent / (MASKS + name[len("images") :]) if name.startswith("images") else None
+
+
+def read_masks_beside(scene: Scene, image_dir: Path) -> Scene:
+    """COLMAP / LLFF: each frame's ``mask`` from ``<stem>.png`` in :func:`masks_folder` (:func:`checked_mask`),
+    when that folder holds one for every frame (as sparself writes them; nerfstudio takes all or none)."""
+    folder = masks_folder(image_dir)
+    if folder is None or not folder.is_dir():
+        return scene
+    files = [folder / mask_name(f.name) for f in scene.frames]
+    found = sum(p.is_file() for p in files)
+    if found < len(files):
+        if found:
+            log.warning(
+                "%s: masks for %d of %d images; masks are read only when every image has one", folder, found, len(files)
+            )
+        return scene
+    for i, (f, p) in enumerate(zip(scene.frames, files)):
+        f.mask = checked_mask(p, scene.image_size(i))
+    return scene

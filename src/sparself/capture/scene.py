@@ -1,0 +1,344 @@
+"""Scene, Camera, Frame: a capture's images, intrinsics and poses in ONE convention (COLMAP world-to-camera).
+
+Image decoding lives here, once: EXIF orientation is applied, grayscale / RGBA / 16-bit images become
+RGB float32 in [0, 1], and any unreadable file raises :class:`InputError` naming it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from sparself.capture.images import load_image, read_mask, resize_image
+from sparself.core.errors import InputError
+from sparself.core.geometry import Pose, fov_deg, intrinsics_matrix
+
+log = logging.getLogger(__name__)
+
+# fewer sparse points than this are not used: 3DGS starts from random points instead, and triangulation that
+# finds fewer leaves a scene without points
+MIN_POINTS = 100
+
+
+# Parameter layouts of the COLMAP camera models we read: (fx, fy, cx, cy) are taken from these.
+_PINHOLE_LIKE = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "SIMPLE_RADIAL_FISHEYE": ("f", "cx", "cy", "k"),
+    "RADIAL_FISHEYE": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+}
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics of one physical camera, with COLMAP's model name and parameter order.
+
+    Distortion parameters are carried through for export but ignored by the pinhole maths here.
+    """
+
+    model: str
+    width: int
+    height: int
+    params: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if self.model not in _PINHOLE_LIKE:
+            raise ValueError(f"unsupported camera model {self.model!r}")
+        names = _PINHOLE_LIKE[self.model]
+        if len(self.params) != len(names):
+            raise ValueError(f"{self.model} needs {len(names)} parameters, got {len(self.params)}")
+        if not np.all(np.isfinite(self.params)):
+            raise ValueError("camera parameters contain NaN or inf")
+        object.__setattr__(self, "params", tuple(float(p) for p in self.params))
+
+    def _get(self, name: str) -> float:
+        return self.params[_PINHOLE_LIKE[self.model].index(name)]
+
+    @property
+    def fx(self) -> float:
+        return self._get("f") if "f" in _PINHOLE_LIKE[self.model] else self._get("fx")
+
+    @property
+    def fy(self) -> float:
+        return self._get("f") if "f" in _PINHOLE_LIKE[self.model] else self._get("fy")
+
+    @property
+    def cx(self) -> float:
+        return self._get("cx")
+
+    @property
+    def cy(self) -> float:
+        return self._get("cy")
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsics matrix."""
+        return intrinsics_matrix(self.fx, self.fy, self.cx, self.cy)
+
+    @property
+    def fov_deg(self) -> tuple[float, float]:
+        """(horizontal, vertical) field of view in degrees."""
+        return fov_deg(self.width, self.fx), fov_deg(self.height, self.fy)
+
+    @classmethod
+    def pinhole(
+        cls,
+        width: int,
+        height: int,
+        fx: float,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+    ) -> "Camera":
+        """A PINHOLE camera; the principal point defaults to the image centre."""
+        fy = fx if fy is None else fy
+        cx = width / 2.0 if cx is None else cx
+        cy = height / 2.0 if cy is None else cy
+        return cls("PINHOLE", int(width), int(height), (fx, fy, cx, cy))
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera for images resampled to (width, height): focal and centre scale per axis.
+
+        Follows the pixel-corner convention (COLMAP's): a pixel centre x maps to (x + 0.5) s - 0.5
+        only approximately; we scale the principal point by s, as COLMAP's own image undistorter does.
+        """
+        sx, sy = width / self.width, height / self.height
+        return Camera.pinhole(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
+
+
+@dataclass
+class Frame:
+    """One image of a scene: its pose, its camera, its place in the capture order.
+
+    index: position in capture order; fractional for planned (novel) poses, e.g. 3.5 between 3 and 4.
+    path: the image file, or None for a pose without a photo (a planned view before synthesis).
+    image: an in-memory image (H, W, 3) float32 in [0, 1], used instead of ``path`` when set
+           (synthesized views before they are written).
+    confidence: a synthesized view's per-pixel confidence (H, W) in [0, 1], written as ``masks/``.
+    mask: a mask file holding the confidence (8-bit, value / 255: nerfstudio's ``mask_path``, sparself's
+          ``masks/``), as read back from a scene; decoded only when used (:meth:`Scene.confidence_map`),
+          so that a megapixel scene does not hold every map in memory. ``confidence`` wins when both are set.
+    weight: the frame's loss weight in the in-project reconstructors (in memory only; the evaluation sets it on
+            synthesized frames): each pixel counts ``weight`` x its confidence (see :meth:`Scene.pixel_weight`).
+    """
+
+    name: str
+    pose: Pose
+    camera_id: int = 1
+    index: float = 0.0
+    path: Path | None = None
+    image: np.ndarray | None = None
+    synthetic: bool = False
+    confidence: np.ndarray | None = None
+    mask: Path | None = None
+    weight: float = 1.0
+
+
+@dataclass
+class Scene:
+    """A capture: cameras (by id), frames in capture order, optional depth bounds and sparse points.
+
+    bounds: (near, far) scene depth range over all cameras, if known (LLFF stores it; COLMAP points give it).
+    points: (P, 3) sparse world points, if known.
+    """
+
+    cameras: dict[int, Camera]
+    frames: list[Frame]
+    bounds: tuple[float, float] | None = None
+    points: np.ndarray | None = None
+    source: Path | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for f in self.frames:
+            if f.camera_id not in self.cameras:
+                raise ValueError(f"frame {f.name} refers to unknown camera {f.camera_id}")
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    # ---- poses -------------------------------------------------------------------------------
+    @property
+    def poses(self) -> list[Pose]:
+        return [f.pose for f in self.frames]
+
+    def camera(self, i: int) -> Camera:
+        """The camera of frame i."""
+        return self.cameras[self.frames[i].camera_id]
+
+    def centers(self) -> np.ndarray:
+        """(N, 3) camera centres."""
+        return np.stack([f.pose.center for f in self.frames]) if self.frames else np.zeros((0, 3))
+
+    def c2w(self) -> np.ndarray:
+        """(N, 4, 4) camera-to-world matrices (OpenCV camera axes)."""
+        return np.stack([f.pose.c2w() for f in self.frames])
+
+    def w2c(self) -> np.ndarray:
+        """(N, 4, 4) world-to-camera matrices."""
+        return np.stack([f.pose.w2c() for f in self.frames])
+
+    def scale(self) -> float:
+        """A length scale of the capture: the median distance of camera centres to their mean (>0)."""
+        c = self.centers()
+        d = np.linalg.norm(c - c.mean(0), axis=1)
+        s = float(np.median(d)) if len(d) else 1.0
+        return s if s > 1e-9 else 1.0
+
+    def depth_bounds(self) -> tuple[float, float]:
+        """(near, far) scene depth. From ``bounds`` if known, else from the sparse points seen in front
+        of the cameras (1st/99th percentile), else a guess from the camera layout (logged)."""
+        if self.bounds is not None:
+            return float(self.bounds[0]), float(self.bounds[1])
+        if self.points is not None and len(self.points) >= 10:
+            depths = []
+            for f in self.frames:
+                z = (self.points @ f.pose.R.T + f.pose.tvec)[:, 2]
+                depths.append(z[z > 0])
+            z = np.concatenate(depths) if depths else np.zeros(0)
+            if len(z) >= 10:
+                near, far = np.percentile(z, 1) * 0.9, np.percentile(z, 99) * 1.1
+                return float(max(near, 1e-3)), float(max(far, near * 1.5))
+        # Cameras looking at a common centre: the scene lies around the centroid of the centres.
+        dist = float(np.median(np.linalg.norm(self.centers() - self.centers().mean(0), axis=1)))
+        dist = dist if dist > 1e-9 else 1.0
+        log.warning("scene has no depth bounds or sparse points; guessing near/far from camera layout")
+        return 0.2 * dist, 5.0 * dist
+
+    # ---- images ------------------------------------------------------------------------------
+    def image(self, i: int, size: tuple[int, int] | None = None) -> np.ndarray:
+        """Image of frame i as (H, W, 3) float32 in [0, 1], optionally resized to size = (W, H)."""
+        f = self.frames[i]
+        if f.image is not None:
+            img = f.image
+            if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+                img = resize_image(img, size)
+            return img
+        if f.path is None:
+            raise InputError(f"frame {f.name} has no image (a planned pose that was not synthesized)")
+        cam = self.camera(i)
+        img = load_image(f.path, size=size)
+        if size is None and (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+            raise InputError(
+                f"{f.path}: image is {img.shape[1]}x{img.shape[0]} but its camera says {cam.width}x{cam.height}"
+            )
+        return img
+
+    def images(self, size: tuple[int, int] | None = None, indices: Iterable[int] | None = None) -> np.ndarray:
+        """(N, H, W, 3) float32 images (all frames, or ``indices``), optionally resized to size = (W, H)."""
+        idx = range(len(self.frames)) if indices is None else list(indices)
+        return np.stack([self.image(i, size) for i in idx])
+
+    # ---- derived scenes ----------------------------------------------------------------------
+    def subset(self, indices: Sequence[int]) -> "Scene":
+        """A scene with only the given frames (in the given order); cameras and bounds are shared."""
+        frames = [self.frames[i] for i in indices]
+        return replace(self, frames=frames)
+
+    def without(self, positions: Sequence[int]) -> "Scene":
+        """The scene minus the frames at ``positions`` (a hold-out), the others in their order."""
+        drop = set(positions)
+        return self.subset([i for i in range(len(self)) if i not in drop])
+
+    def resized(self, max_side: int) -> "Scene":
+        """The scene at a lower resolution: cameras scaled so their longer side is ``max_side`` pixels.
+
+        Images are resized when loaded through :meth:`image` with :meth:`image_size`.
+        """
+        cams = {}
+        for cid, cam in self.cameras.items():
+            s = max_side / max(cam.width, cam.height)
+            w, h = max(1, int(round(cam.width * s))), max(1, int(round(cam.height * s)))
+            cams[cid] = cam.resized(w, h)
+        out = replace(self, cameras=cams)
+        out.meta = dict(self.meta, resized_from={cid: (c.width, c.height) for cid, c in self.cameras.items()})
+        return out
+
+    def image_size(self, i: int = 0) -> tuple[int, int]:
+        """(W, H) of frame i's camera."""
+        c = self.camera(i)
+        return c.width, c.height
+
+    def load(self, i: int) -> np.ndarray:
+        """Image of frame i at its camera's size (resizing when the scene was :meth:`resized`)."""
+        return self.image(i, self.image_size(i))
+
+    def confidence_map(self, i: int) -> np.ndarray | None:
+        """Frame i's confidence (H, W) float32 at the size it was made or stored at: its in-memory
+        ``confidence``, else its ``mask`` file (value / 255, :func:`read_mask`), else None (no map)."""
+        f = self.frames[i]
+        if f.confidence is not None:
+            return np.asarray(f.confidence, np.float32)
+        return None if f.mask is None else np.divide(read_mask(f.mask), 255.0, dtype=np.float32)
+
+    def pixel_weight(self, i: int) -> np.ndarray | None:
+        """Frame i's per-pixel loss weight (H, W) at its camera's size: its ``weight`` x its confidence map
+        (:meth:`confidence_map`); None when every pixel counts 1 (weight 1, no map), so reconstructors keep
+        their plain loss."""
+        f = self.frames[i]
+        if f.confidence is None and f.mask is None and f.weight == 1.0:
+            return None
+        w, h = self.image_size(i)
+        conf = self.confidence_map(i)
+        if conf is None:
+            return np.full((h, w), f.weight, np.float32)
+        if f.confidence is not None:  # a map made in memory may hold NaN or go past [0, 1]; a mask's cannot
+            conf = np.clip(np.nan_to_num(conf), 0.0, 1.0)
+        if conf.shape != (h, w):
+            conf = np.clip(resize_image(conf, (w, h)), 0.0, 1.0)
+        return (f.weight * conf).astype(np.float32, copy=False)
+
+    def load_all(self) -> np.ndarray:
+        """(N, H, W, 3) images at the cameras' size. All frames must share one image size."""
+        sizes = {self.image_size(i) for i in range(len(self))}
+        if len(sizes) > 1:
+            raise InputError(f"frames have different image sizes {sorted(sizes)}; resize the scene first")
+        return np.stack([self.load(i) for i in range(len(self))])
+
+
+# ---- image files -------------------------------------------------------------------------------
+
+
+# ---- conversions to upright 8/32-bit RGB: what they are, said once per folder with a count ----------------
+
+
+def one_size(scene: Scene) -> Scene:
+    """Mixed image sizes: the scene with every camera resized to the most common size (with a warning),
+    so that training and synthesis see one image size; different aspect ratios are refused (InputError)."""
+    sizes = {(c.width, c.height) for c in scene.cameras.values()}
+    if len(sizes) <= 1:
+        return scene
+    counts = Counter(scene.image_size(i) for i in range(len(scene)))
+    w, h = max(sizes, key=lambda s: (counts.get(s, 0), s))
+    if any(abs(cw * h - ch * w) > 0.01 * ch * w for cw, ch in sizes):
+        raise InputError(
+            f"{scene.source or 'scene'}: views have different aspect ratios "
+            f"({', '.join(f'{a}x{b}' for a, b in sorted(sizes))}); use photos of one shape"
+        )
+    log.warning(
+        "%s: views have different image sizes (%s); resizing them to %dx%d",
+        scene.source or "scene",
+        ", ".join(f"{a}x{b}" for a, b in sorted(sizes)),
+        w,
+        h,
+    )
+    return replace(
+        scene,
+        cameras={cid: c if (c.width, c.height) == (w, h) else c.resized(w, h) for cid, c in scene.cameras.items()},
+    )
+
+
+def preloaded(scene: Scene) -> Scene:
+    """The scene with every frame's image decoded at its camera's size and held in memory (so a resized
+    scene writes resized images, and every consumer sees the same pixels)."""
+    return replace(scene, frames=[replace(f, image=scene.load(i)) for i, f in enumerate(scene.frames)])

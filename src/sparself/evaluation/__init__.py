@@ -1,0 +1,1 @@
+"""Evaluation: the held-out protocol, its typed results and the report."""

@@ -1,0 +1,120 @@
+"""The evaluation's options (:class:`EvalConfig`) and what ``--quick`` changes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from sparself.core.errors import ConfigError
+from sparself.core.options import option
+from sparself.synthesis.train_config import TrainConfig
+
+DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
+
+
+PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
+
+
+POINTS_CHOICES = ("inputs", "capture")  # where the inputs' sparse points come from (EvalConfig.points)
+
+
+VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight
+
+# what --quick changes
+QUICK = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
+
+
+@dataclass
+class EvalConfig:
+    """Every setting of an evaluation run (all recorded in the results; each field's help is its
+    documentation, and ``sparself evaluate --help`` shows them). ``train``: the network's training options
+    (its seed, size and epochs are set by the evaluation)."""
+
+    size: int = option(128, "longer image side in pixels for every step (images are resized once, on load)")
+    inputs: int = option(25, "N, the number of sparse input views taken from a dense capture")
+    extrapolation_margin: int | None = option(
+        None,
+        "capture frames kept beyond the first and last input of a dense capture (never inputs): their real "
+        "photos score extrapolated views; auto: one input spacing, at least holdout_every + 1 so held-out frames "
+        "lie beyond both ends; 0: the inputs span the whole capture",
+    )
+    holdout_every: int = option(8, "hold out every k-th interior frame of a dense capture")
+    sparse_holdout_every: int = option(2, "the same for captures too small for the dense protocol")
+    n_mid: int = option(8, "planned midpoints used for densification")
+    n_extra: int = option(2, "planned extrapolated poses used for densification")
+    seeds: int = option(3, "network seeds, reported as mean ± std")
+    first_seed: int = option(
+        0,
+        "the first network seed: seeds are first_seed .. first_seed + seeds - 1 (`sparself "
+        "batch evaluate` runs one seed per task)",
+    )
+    reconstructors: tuple[str, ...] = option(
+        ("mpi", "nerf"), "reconstructors, comma-separated: mpi,nerf,gsplat,3dgs", flag="--recon"
+    )
+    baselines: tuple[str, ...] = option(
+        ("nearest", "blend", "flow", "planesweep"), "view-synthesis baselines scored on held-out poses"
+    )
+    densify_baselines: tuple[str, ...] = option(
+        ("blend", "flow", "planesweep"), "baselines whose synthesized views are also used for densification"
+    )
+    epochs: int | None = option(None, "network training epochs (auto: the network's)")
+    nerf_steps: int = option(1000, "NeRF optimisation steps per fit")
+    recon_seed: int = option(0, "seed of the reconstructors")
+    max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; auto: all)")
+    oracle: bool = option(True, "skip the oracle densification (real photos at the planned poses)")
+    weighted: bool = option(
+        True,
+        "skip 'N + sparself, weighted': each reconstructor refitted on N + the network's "
+        "views with their confidence maps as per-pixel loss weights and a synthetic-frame "
+        "weight chosen on input views only",
+    )
+    synthetic_weights: tuple[float, ...] = option(
+        (0.25, 0.5, 1.0),
+        "synthetic-frame loss weights tried for 'N + sparself, weighted': each is fitted on the "
+        f"inputs minus every {VALIDATION_EVERY}th interior one (+ the first seed's views), the best PSNR on those "
+        "held-back inputs wins (one fit per weight and reconstructor, plus one refit per seed)",
+    )
+    examples: int = option(1, "held-out frames per scene saved as image grids for the report")
+    lpips: bool = option(True, "skip LPIPS")
+    points: str = option(
+        "inputs",
+        "the inputs' sparse points (3DGS initial Gaussians, NeRF's scene box, the depth "
+        "range of scenes without bounds): 'inputs' triangulates them from the N inputs' photos at their "
+        "known poses (the capture's own points, made from every photo, held-out ones included, are "
+        "dropped); 'capture' keeps the capture's points (as runs before this option)",
+        choices=POINTS_CHOICES,
+    )
+    progress: bool = option(True, "progress bars", cli=False)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def validate(self) -> None:
+        if self.size < 8:
+            raise ConfigError(f"size must be at least 8 pixels, got {self.size}")
+        if self.inputs < 3:
+            raise ConfigError(f"inputs must be at least 3, got {self.inputs}")
+        if self.holdout_every < 2 or self.sparse_holdout_every < 2:
+            raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
+        if self.seeds < 1:
+            raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+        if self.first_seed < 0:
+            raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
+        if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
+            raise ConfigError(f"extrapolation_margin must not be negative, got {self.extrapolation_margin}")
+        if self.points not in POINTS_CHOICES:
+            raise ConfigError(f"points must be one of {', '.join(POINTS_CHOICES)}, got {self.points!r}")
+        if self.weighted and (not self.synthetic_weights or min(self.synthetic_weights) < 0):
+            raise ConfigError(f"synthetic_weights must be one or more weights >= 0, got {self.synthetic_weights}")
+
+    @classmethod
+    def quick(cls, **kw) -> "EvalConfig":
+        """Minutes, not hours, on 2 CPU cores: 64 px, 1 seed, 3 network epochs (an under-trained network),
+        a short NeRF, at most 6 scored frames, one baseline densified."""
+        base = dict(QUICK)
+        base.update(kw)
+        return cls(**base)
+
+
+def eval_config(*, quick: bool = False, train_cfg: TrainConfig | None = None, **given) -> EvalConfig:
+    """The command line's EvalConfig: the fields given (None: not given) over the defaults of
+    :class:`EvalConfig` or of :meth:`EvalConfig.quick`; train_cfg: the network's training options."""
+    cfg = EvalConfig.quick() if quick else EvalConfig()
+    return replace(cfg, **{k: v for k, v in given.items() if v is not None}, train=train_cfg or cfg.train)

@@ -1,0 +1,119 @@
+"""The protocol's instruments: the network and baselines as synthesizers, the reconstructors, the scoring of a
+render against a held-out photo (decoded only here), and the software versions recorded with the results."""
+
+from __future__ import annotations
+
+import platform
+import subprocess
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from sparself.capture.images import load_image, resize_image
+from sparself.capture.scene import Frame, Scene
+from sparself.core import metrics
+from sparself.core.errors import ConfigError, InputError
+from sparself.evaluation.config import EvalConfig
+from sparself.model import default_weights
+from sparself.recon import get_reconstructor
+from sparself.synthesis.baselines import BASELINES
+from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
+from sparself.synthesis.train import train
+
+# synthesize(scene, targets) -> (T, H, W, 3), or Synthesized (images + per-pixel confidence)
+SynthFn = Callable[[Scene, list], "np.ndarray | Synthesized"]
+
+
+def load_truth(frame: Frame, size: tuple[int, int]) -> np.ndarray:
+    """Decode a real photo for scoring. The ONLY place the evaluation reads a held-out image."""
+    if frame.image is not None:
+        img = frame.image
+        return img if (img.shape[1], img.shape[0]) == tuple(size) else resize_image(img, size)
+    if frame.path is None:
+        raise InputError(f"frame {frame.name}: no photo to score against")
+    return load_image(frame.path, size=size)
+
+
+def score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> dict:
+    return {
+        "psnr": metrics.psnr(pred, truth),
+        "ssim": metrics.ssim(pred, truth),
+        "lpips": metrics.lpips(pred, truth) if use_lpips else None,
+    }
+
+
+def versions() -> dict:
+    """Versions of everything that produced the numbers (missing packages are None)."""
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in ("sparself", "torch", "numpy", "pycolmap", "kornia", "cv2", "skimage"):
+        try:
+            mod = __import__(name)
+            out[name] = getattr(mod, "__version__", None)
+        except Exception:
+            out[name] = None
+    try:
+        out["git_commit"] = (
+            subprocess.run(
+                ["git", "rev-parse", "HEAD"],
+                cwd=Path(__file__).resolve().parent,
+                capture_output=True,
+                text=True,
+                timeout=10,
+            ).stdout.strip()
+            or None
+        )
+    except Exception:
+        out["git_commit"] = None
+    return out
+
+
+def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
+    """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.train.train`` with
+    ``cfg.train`` (seed, size and epochs from the evaluation) on the inputs, in a temporary run folder, and
+    returns the bound ``synthesize(scene, targets) -> Synthesized`` (images and confidence)."""
+    # resolved (and warned about) once, not once per scene and seed
+    weights = cfg.train.weights if cfg.train.weights is not None else default_weights()
+    base = replace(
+        cfg.train, size=cfg.size, weights=weights, epochs=cfg.epochs if cfg.epochs is not None else cfg.train.epochs
+    )
+
+    def make(scene: Scene, seed: int) -> SynthFn:
+        with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
+            run = train(scene, Path(tmp) / "run", replace(base, seed=seed), progress=cfg.progress)
+        return lambda sc, targets, **_: synthesize_with_confidence(run, sc, targets)
+
+    return make
+
+
+def baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
+    unknown = [n for n in names if n not in BASELINES]
+    if unknown:
+        raise ConfigError(f"unknown baseline(s) {unknown}; known: {sorted(BASELINES)}")
+    return {n: BASELINES[n] for n in names}
+
+
+def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
+    """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
+    the evaluation's settings applied."""
+    fit = get_reconstructor(name)
+    kw = {
+        "nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
+        "gsplat": dict(seed=cfg.recon_seed, progress=cfg.progress),
+        "3dgs": dict(seed=cfg.recon_seed, progress=cfg.progress),
+    }.get(name, {})
+    return lambda sc: fit(sc, **kw)
+
+
+def with_images(scene: Scene, extra: list[Frame], images, confidence: np.ndarray | None = None) -> Scene:
+    """scene plus ``extra`` frames carrying in-memory images (and their confidence maps), sorted by capture
+    index."""
+    images = np.asarray(images, np.float32).reshape(len(extra), *np.shape(images)[1:])
+    return densify_scene(scene, list(extra), images, confidence)
+
+
+def images_and_confidence(out) -> tuple[np.ndarray, np.ndarray | None]:
+    """A synthesizer's answer as (images, confidence or None): the network's is a Synthesized."""
+    return (out.images, out.confidence) if isinstance(out, Synthesized) else (np.asarray(out), None)

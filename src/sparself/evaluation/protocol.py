@@ -1,0 +1,536 @@
+"""The held-out evaluation protocol: does densifying a sparse capture with synthesized views help?
+
+Protocol (per scene, in this order):
+
+1. **Hold out** evaluation frames before anything else: every ``holdout_every``-th frame (default 8),
+   interior ones only (never the first or last frame, so they are interpolations, as LLFF's
+   ``llffhold`` split but without frame 0). Only their *poses* leave this module's scoring step;
+   their pixels are decoded in :func:`load_truth`, called only while scoring.
+2. **Dense captures** (enough frames left for at least one real photo in every gap between the N
+   inputs): an *extrapolation margin* of frames is kept beyond each end (``extrapolation_margin``; auto:
+   one input spacing, at least ``holdout_every + 1`` frames so a held-out frame lies beyond each end;
+   0: none), and N evenly spaced frames of the rest inside the margins are the sparse input (N = 25 by
+   default). Margin frames are never inputs. The planned midpoints (sparself.plan, 8 by default) are
+   *snapped* to the real frame nearest the planned index in their gap, and the extrapolated poses
+   (t = 1.2, 2 by default) to the margin frame nearest the planned index beyond the same end input, so
+   each has a real photo at exactly its pose: the ground truth for view synthesis at planned poses
+   (``midpoints`` and ``extrapolations``), and the oracle's training image.
+3. **Sparse captures** (too few frames, e.g. 16-view Middlebury rings): every other interior frame is
+   held out and the rest are the inputs. No real photos lie between inputs except held-out ones, so no
+   oracle is run and midpoints are not scored separately (the held-out frames are the midpoints).
+4. **Sparse points** (``points``): the capture's own points were made from all its photos, held-out ones
+   included, so by default they are dropped and points are triangulated from the N inputs' photos at their
+   known poses (:func:`input_points`, sparself.triangulate), before anything is fitted. Every row of a
+   scene (N, N + synthesized, weighted, oracle) and the network's and baselines' depth range start from
+   these same points. ``points="capture"`` keeps the capture's points (runs before this option).
+5. Two questions:
+   - *View synthesis*: the network (``seeds`` seeds) and every baseline synthesize the held-out
+     poses from the inputs alone; scored against the real photos. Held-out frames beyond the first or
+     last input (in the margins) are *extrapolated*, the others *interpolated*: every score is also
+     summarised per group (``groups``, where a set has both).
+   - *Densification*: each reconstructor is fitted on the N inputs ("25"), on N + synthesized views
+     ("35", network per seed and each densify-baseline), and on the oracle (N + real photos at the
+     snapped planned poses; a planned pose without one keeps the network's seed-0 view), then renders the held-out
+     poses. The oracle share is (35 - 25) / (oracle - 25) in PSNR.
+
+"N + sparself, weighted" (``weighted``, on by default) refits each reconstructor on N + the network's views
+with their confidence maps as per-pixel loss weights, times a synthetic-frame weight chosen from
+``synthetic_weights`` on the inputs alone (:func:`choose_weight`: fitted without every 5th interior input,
+scored on those), on the run's first seed; the plain "N + sparself" stays unweighted, for comparability.
+The validation fits' synthesized views are synthesized again by that seed's network from the inputs minus
+the held-back ones (:func:`validation_views`), so their pixels carry none of the held-back photos; the
+network itself was still trained on all inputs (retraining per choice would be too slow).
+
+Results: a JSON-able dict (per frame, per scene, mean/std, every setting and versions). A scene that
+fails is recorded with its error and the others go on.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from sparself.capture.images import save_image
+from sparself.capture.plot import plot_cameras
+from sparself.capture.scene import MIN_POINTS, Frame, Scene, preloaded
+from sparself.capture.triangulate import triangulate, with_points
+from sparself.core.errors import InputError, SparselfError
+from sparself.core.geometry import rotation_angle_deg
+from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig
+from sparself.evaluation.instruments import (
+    SynthFn,
+    baseline_fns,
+    images_and_confidence,
+    load_truth,
+    network_factory,
+    reconstructor,
+    score,
+    with_images,
+)
+from sparself.evaluation.report import safe_name as _safe
+from sparself.evaluation.results import (
+    EXTRAPOLATED,
+    INTERPOLATED,
+    NETWORK,
+    NETWORK_WEIGHTED,
+    FrameScore,
+    ScoredSet,
+    SeededSets,
+    share_of_oracle_gain,
+)
+from sparself.evaluation.split import Split, make_split
+from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_views, weighted_scene
+from sparself.synthesis.plan import PlanConfig, plan_poses
+
+log = logging.getLogger(__name__)
+
+
+def pose_only(f: Frame, **kw) -> Frame:
+    """A copy of f with no pixels attached: what synthesizers and renderers may see of a held-out frame."""
+    return replace(f, path=None, image=None, **kw)
+
+
+def snap(index: float, split: Split) -> int | None:
+    """The real frame a planned pose at ``index`` is snapped to on a dense capture: a midpoint to the
+    ``between`` frame nearest it in its gap, an extrapolation to the ``margin`` frame nearest it beyond
+    the same end input; None when there is none (or on a sparse capture)."""
+    if split.kind != "dense":
+        return None
+    lo = max([i for i in split.inputs if i <= index], default=None)
+    hi = min([i for i in split.inputs if i >= index], default=None)
+    if lo is None:
+        cands = [i for i in split.margin if i < split.inputs[0]]
+    elif hi is None:
+        cands = [i for i in split.margin if i > split.inputs[-1]]
+    else:
+        cands = [i for i in split.between if lo < i < hi]
+    return min(cands, key=lambda i: (abs(i - index), i)) if cands else None
+
+
+def plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
+    """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints and
+    extrapolations)."""
+    planned = plan_poses(inputs, PlanConfig(n_mid=cfg.n_mid, n_extra=cfg.n_extra, order="capture"))
+    info: list[dict] = []
+    out: list[Frame] = []
+    for f in planned:
+        rec = {"name": f.name, "planned_index": f.index, "group": split.group(f.index), "truth": None}
+        j = snap(f.index, split)
+        if j is not None:
+            real = full.frames[j]
+            rec.update(
+                truth=j,
+                truth_name=real.name,
+                snap_move=float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale()),
+                snap_turn_deg=float(rotation_angle_deg(real.pose.R, f.pose.R)),
+            )
+            f = pose_only(real, name=f"novel_at_{real.name}", synthetic=True)
+        out.append(f)
+        info.append(rec)
+    return out, info
+
+
+def scene_name(scene: Scene) -> str:
+    """The capture's folder name (a pose file's folder: ``middlebury_dinoSparseRing``, not ``dinoSR_par.txt``)."""
+    if scene.source is None:
+        return str(scene.meta.get("name", "scene"))
+    return name_from_source(scene.source)
+
+
+def name_from_source(source: str | Path) -> str:
+    """``.../llff_bird/sparse/0`` -> ``llff_bird``; ``.../dino/dinoSR_par.txt`` -> ``dino``."""
+    src = Path(source)
+    if src.suffix:
+        src = src.parent
+    while (src.name.isdigit() or src.name == "sparse") and src.parent != src:
+        src = src.parent
+    return src.name
+
+
+@dataclass
+class SceneEval:
+    """One scene's evaluation as its named steps fill it in: the split, the inputs and planned poses, the
+    images each method synthesized at the planned poses, and the results (``res``, JSON-able)."""
+
+    name: str
+    cfg: EvalConfig
+    full: Scene
+    split: Split
+    scored: list[int]  # held-out frames that are scored
+    inputs: Scene
+    planned: list[Frame]
+    mid_truth: dict[int, int]  # planned pose k -> the real frame at it (dense: midpoints and extrapolations)
+    res: dict
+    out_dir: Path | None = None
+    ex_dir: Path | None = None
+    net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
+    net_conf: list[np.ndarray | None] = field(default_factory=list)  # their confidence (T, H, W), per seed
+    net_synth: SynthFn | None = None  # the first seed's network, kept to synthesize the validation views
+    validation: ValidationViews | None = None  # made once per scene, shared by every reconstructor
+    baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
+    on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step
+
+    def partial(self) -> None:
+        if self.on_partial is not None:
+            self.on_partial(self.res)
+
+    @property
+    def targets(self) -> list[Frame]:
+        """The scored held-out frames as poses only (what synthesizers and renderers see)."""
+        return [pose_only(self.full.frames[i]) for i in self.scored]
+
+    @property
+    def mid_targets(self) -> list[int]:
+        return list(self.mid_truth.values())
+
+    def score(
+        self,
+        images: np.ndarray,
+        label: str,
+        idx: list[int],
+        *,
+        held_out: bool = True,
+        seed: int | None = None,
+        views: int | None = None,
+    ) -> ScoredSet:
+        """Score ``images`` against the real photos of frames ``idx``; for held-out frames among the
+        examples, also save the images (and the ground truth once) for the report."""
+        rows = []
+        for k, i in enumerate(idx):
+            frame = self.full.frames[i]
+            truth = load_truth(frame, self.full.image_size(i))
+            rows.append(FrameScore(frame.name, i, **score(images[k], truth, self.cfg.lpips), group=self.split.group(i)))
+            if held_out and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
+                self._save_example(frame.name, label, images[k], truth)
+        return ScoredSet(rows, seed=seed, views=views)
+
+    def _save_example(self, frame: str, label: str, image: np.ndarray, truth: np.ndarray) -> None:
+        d = self.ex_dir / _safe(frame)
+        d.mkdir(exist_ok=True)
+        if not (d / "ground_truth.png").exists():
+            save_image(d / "ground_truth.png", truth)
+        save_image(d / f"{_safe(label)}.png", image)
+        ex = self.res["examples"].setdefault(frame, {})
+        ex["ground_truth"] = str((d / "ground_truth.png").relative_to(self.out_dir))
+        ex[label] = str((d / f"{_safe(label)}.png").relative_to(self.out_dir))
+
+
+def sorted_resized(scene: Scene, cfg: EvalConfig) -> Scene:
+    """The capture in index order at the evaluation's size, re-indexed 0..n-1."""
+    order = sorted(range(len(scene)), key=lambda i: scene.frames[i].index)
+    full = scene.subset(order).resized(cfg.size)
+    return replace(full, frames=[replace(f, index=float(k)) for k, f in enumerate(full.frames)])
+
+
+def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig, res: dict) -> Scene:
+    """``full`` with its sparse points set by ``cfg.points``, recorded in ``res["input_points"]``.
+
+    "inputs": triangulated from the photos of frames ``inputs`` alone (at their original ``cameras``, up to
+    800 px), never a held-out one; fewer than MIN_POINTS are dropped (the reconstructors then fall back as on a
+    capture without points; noted). "capture": the capture's own points. Called before anything is fitted:
+    ``ev.inputs`` inherits these points, and every row of the scene (N, N + sparself, weighted, densify
+    baselines, oracle) fits on ``ev.inputs`` plus frames, so all rows share the same points."""
+    if cfg.points == "capture":
+        res["input_points"] = {"source": "capture", "points": 0 if full.points is None else len(full.points)}
+        return full
+    tri = triangulate(replace(full.subset(inputs), cameras=cameras))
+    res["input_points"] = {
+        "source": "inputs",
+        "points": len(tri.points),
+        "views": tri.views,
+        "pairs": tri.pairs,
+        "matches": tri.matches,
+        "seconds": tri.seconds,
+    }
+    if len(tri.points) < MIN_POINTS:
+        res["notes"].append(
+            f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
+            "the reconstructors start without sparse points"
+        )
+        meta = {k: v for k, v in full.meta.items() if k not in ("point_colors", "observations")}  # the capture's
+        return replace(full, points=None, meta=meta)
+    return with_points(full, tri)
+
+
+def protocol(ev: SceneEval, plan_info: list[dict]) -> dict:
+    """What the report says about the split, and the cameras for its plot."""
+    full, split = ev.full, ev.split
+    return {
+        "kind": split.kind,
+        "rule": split.rule,
+        "n_frames": len(full),
+        "held_out": [full.frames[i].name for i in split.eval],
+        "held_out_index": split.eval,
+        "scored": [full.frames[i].name for i in ev.scored],
+        "inputs": [full.frames[i].name for i in split.inputs],
+        "inputs_index": split.inputs,
+        "extrapolated": [full.frames[i].name for i in ev.scored if split.group(i) == EXTRAPOLATED],
+        "margin": [full.frames[i].name for i in split.margin],
+        "image_size": list(full.image_size(0)),
+        "planned": plan_info,
+        "camera_frames": {
+            "inputs": [f.pose.as_vector().tolist() for f in ev.inputs.frames],
+            "held_out": [f.pose.as_vector().tolist() for f in ev.targets],
+            "planned": [f.pose.as_vector().tolist() for f in ev.planned],
+        },
+    }
+
+
+def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None) -> SceneEval:
+    """Split the capture, plan the novel poses and draw the cameras."""
+    name = scene_name(scene)
+    res: dict = {
+        "name": name,
+        "source": str(scene.source) if scene.source else None,
+        "status": "running",
+        "notes": [],
+        "timings": {},
+    }
+    full = sorted_resized(scene, cfg)
+    split = make_split(len(full), cfg)
+    if len(split.eval) == 0:
+        raise InputError(f"{name}: {len(full)} frames leave no interior frame to hold out")
+    full = input_points(full, scene.cameras, split.inputs, cfg, res)
+    scored = split.eval
+    if cfg.max_eval and len(scored) > cfg.max_eval:
+        scored = [scored[p] for p in np.round(np.linspace(0, len(scored) - 1, cfg.max_eval)).astype(int)]
+    inputs = preloaded(full.subset(split.inputs))
+    planned, plan_info = plan(inputs, split, cfg, full)
+    mid_truth = {k: rec["truth"] for k, rec in enumerate(plan_info) if rec["truth"] is not None}
+    ev = SceneEval(name, cfg, full, split, scored, inputs, planned, mid_truth, res, out_dir)
+    res["protocol"] = protocol(ev, plan_info)
+    if out_dir is not None and cfg.examples > 0:
+        ev.ex_dir = Path(out_dir) / "examples" / _safe(name)
+        ev.ex_dir.mkdir(parents=True, exist_ok=True)
+        camera_plot(inputs, planned, [pose_only(full.frames[i]) for i in split.eval], ev.ex_dir / "cameras.png", name)
+        res["camera_plot"] = str((ev.ex_dir / "cameras.png").relative_to(out_dir))
+    res["examples"] = {}
+    return ev
+
+
+def planned_scores(ev: SceneEval, images: np.ndarray, label: str, seed: int | None = None) -> dict[str, ScoredSet]:
+    """The planned views that have a real photo at their pose, scored: {"midpoints": ..., "extrapolations":
+    ...} (a set only where it has frames)."""
+    if not ev.mid_truth:
+        return {}
+    scored = ev.score(images[list(ev.mid_truth)], label, ev.mid_targets, held_out=False, seed=seed)
+    sets = {"midpoints": scored.only(INTERPOLATED), "extrapolations": scored.only(EXTRAPOLATED)}
+    return {k: v for k, v in sets.items() if v.frames}
+
+
+def network_synthesis(ev: SceneEval, network: Callable[[Scene, int], SynthFn] | None) -> None:
+    """Train the network per seed on the inputs; score it at the held-out poses and the planned poses
+    with a real photo (midpoints and extrapolations)."""
+    if network is None:
+        try:
+            network = network_factory(ev.cfg)
+        except SparselfError as e:
+            ev.res["notes"].append(str(e))
+            return
+    held, planned = SeededSets(), {k: SeededSets() for k in PLANNED_SECTIONS}
+    first = ev.cfg.first_seed
+    for seed in tqdm(
+        range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False
+    ):
+        synth = network(ev.inputs, seed)
+        if seed == first:
+            ev.net_synth = synth
+        imgs, _ = images_and_confidence(synth(ev.inputs, ev.targets))
+        held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
+        imgs, conf = images_and_confidence(synth(ev.inputs, ev.planned))
+        ev.net_planned.append(imgs)
+        ev.net_conf.append(conf)
+        for sec, scored in planned_scores(ev, imgs, NETWORK, seed).items():
+            planned[sec].per_seed.append(scored)
+    ev.res["view_synthesis"][NETWORK] = held.to_json()
+    for sec, sets in planned.items():
+        if sets.per_seed:
+            ev.res[sec][NETWORK] = sets.to_json()
+
+
+def baseline_synthesis(ev: SceneEval, baselines: dict[str, SynthFn]) -> None:
+    """Each baseline at the held-out poses and the planned poses with a real photo (and the planned poses
+    it densifies)."""
+    vs = ev.res["view_synthesis"]
+    for bname, fn in tqdm(
+        list(baselines.items()), desc=f"{ev.name}: baselines", disable=not ev.cfg.progress, leave=False
+    ):
+        try:
+            vs[bname] = ev.score(fn(ev.inputs, ev.targets), bname, ev.scored).to_json()
+            if bname in ev.cfg.densify_baselines or ev.mid_truth:
+                ev.baseline_planned[bname] = fn(ev.inputs, ev.planned)
+                for sec, scored in planned_scores(ev, ev.baseline_planned[bname], bname).items():
+                    ev.res[sec][bname] = scored.to_json()
+        except Exception as e:  # one broken baseline must not hide the others
+            log.warning("%s: baseline %s failed: %s", ev.name, bname, e)
+            vs[bname] = {"error": f"{type(e).__name__}: {e}"}
+
+
+def oracle_scene(ev: SceneEval) -> Scene:
+    """The inputs plus the real photos at the snapped planned poses (planned poses without one, e.g.
+    extrapolations with no extrapolation margin, keep the network's seed-0 views, where it ran)."""
+    fill = ev.net_planned[0] if ev.net_planned else None
+    imgs, extra = [], []
+    for k, f in enumerate(ev.planned):
+        if k in ev.mid_truth:
+            # a real, non-held-out photo at exactly this pose (a between or margin frame, never an evaluation frame)
+            imgs.append(ev.full.load(ev.mid_truth[k]))
+            extra.append(f)
+        elif fill is not None:
+            imgs.append(fill[k])
+            extra.append(f)
+    return with_images(ev.inputs, extra, imgs)
+
+
+def densified_scenes(ev: SceneEval) -> list[tuple[str, int | None, Scene]]:
+    """(key, network seed or None, scene) for every reconstruction: N alone, N + each seed's network
+    views, N + each densify-baseline's views, and the oracle."""
+    runs: list[tuple[str, int | None, Scene]] = [("base", None, ev.inputs)]
+    for seed, imgs in enumerate(ev.net_planned, start=ev.cfg.first_seed):
+        runs.append((NETWORK, seed, with_images(ev.inputs, ev.planned, imgs)))
+    for b in ev.cfg.densify_baselines:
+        if b in ev.baseline_planned:
+            runs.append((b, None, with_images(ev.inputs, ev.planned, ev.baseline_planned[b])))
+    if ev.cfg.oracle and ev.split.kind == "dense" and ev.mid_truth:
+        runs.append(("oracle", None, oracle_scene(ev)))
+    return runs
+
+
+def oracle_share(entry: dict) -> None:
+    """The instrument check, then the share, of one reconstructor on one capture: more real photos must
+    not make it worse.
+
+    Sets ``instrument`` ("ok", or "failed: ..." when N + real photos (the oracle) does not beat N alone),
+    ``oracle_gain_db``, and ``oracle_share`` (``oracle_share_weighted`` for "N + sparself, weighted") only
+    when the instrument holds and the gain is measurable."""
+    if "oracle" not in entry or "base" not in entry:
+        return
+    b = entry["base"]["summary"]["psnr"]["mean"]
+    o = entry["oracle"]["summary"]["psnr"]["mean"]
+    entry["oracle_gain_db"] = float(o - b)
+    entry["instrument"] = (
+        "ok" if o > b else (f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
+    )
+    for key, share in ((NETWORK, "oracle_share"), (NETWORK_WEIGHTED, "oracle_share_weighted")):
+        if "summary" in entry.get(key, {}):
+            entry[share] = share_of_oracle_gain(b, entry[key]["summary"]["psnr"]["mean"], o)
+
+
+def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
+    """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
+    (which keeps what was done if a fit fails)."""
+    net = SeededSets()
+    for key, seed, sc in tqdm(
+        densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
+    ):
+        renderer = fit(sc)
+        entry.setdefault("backend", getattr(renderer, "backend", None))
+        imgs = render_targets(ev, renderer)
+        label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
+        scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
+        if seed is None:
+            entry[key] = scored.to_json()
+        else:
+            net.per_seed.append(scored)
+            entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append(scored.to_json())
+    if net.per_seed:
+        entry[NETWORK] = net.to_json()
+    if ev.cfg.weighted and ev.net_planned:
+        try:
+            weighted_fits(ev, rname, fit, entry)
+        except Exception as e:  # the plain results stand without it
+            log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
+            entry[NETWORK_WEIGHTED] = {"error": f"{type(e).__name__}: {e}"}
+    oracle_share(entry)
+    entry["status"] = "ok"
+
+
+def render_targets(ev: SceneEval, renderer) -> np.ndarray:
+    """The renderer's images at the scored held-out poses (poses only: no pixels reach it)."""
+    return np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
+
+
+def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
+    """'N + sparself, weighted': per seed, the inputs + its views (synthesized from all inputs) with their
+    confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
+    run's first seed (its network's views synthesized again without the held-back inputs)."""
+    if ev.validation is None:
+        ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synth)
+    choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
+    choice["chosen_on_seed"] = ev.cfg.first_seed
+    sets, records = SeededSets(), []
+    for k, seed in enumerate(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))):
+        sc = weighted_scene(ev.inputs, ev.planned, ev.net_planned[k], ev.net_conf[k], choice["weight"])
+        label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
+        sets.per_seed.append(ev.score(render_targets(ev, fit(sc)), label, ev.scored, seed=seed, views=len(sc)))
+        records.append({**sets.per_seed[-1].to_json(), "selection": choice})
+    entry[NETWORK_WEIGHTED] = {**sets.to_json(), "per_seed": records}
+
+
+def densification(ev: SceneEval, reconstructors: dict[str, Callable[[Scene], object]] | None) -> None:
+    """Each reconstructor from N views vs N + synthesized views vs the oracle; a failure is recorded."""
+    recs = reconstructors if reconstructors is not None else {}
+    dens: dict = {}
+    ev.res["densification"] = dens
+    for rname in ev.cfg.reconstructors if reconstructors is None else list(recs):
+        t0 = time.perf_counter()
+        entry = dens[rname] = {}
+        try:
+            reconstruct(ev, rname, recs[rname] if rname in recs else reconstructor(rname, ev.cfg), entry)
+        except Exception as e:
+            log.warning("%s: reconstructor %s failed: %s", ev.name, rname, e)
+            entry.update(status="failed", error=f"{type(e).__name__}: {e}")
+        entry["seconds"] = time.perf_counter() - t0
+        ev.partial()
+
+
+def evaluate_scene(
+    scene: Scene,
+    cfg: EvalConfig,
+    out_dir: Path | None = None,
+    *,
+    network: Callable[[Scene, int], SynthFn] | None = None,
+    reconstructors: dict[str, Callable[[Scene], object]] | None = None,
+    baselines: dict[str, SynthFn] | None = None,
+    on_partial: Callable[[dict], None] | None = None,
+) -> dict:
+    """Run the protocol on one scene. Returns the scene's results (JSON-able).
+
+    network: ``make(inputs_scene, seed) -> synthesize`` (default: :func:`network_factory`); None when
+    unavailable is recorded. ``synthesize(sources, targets)`` gets the inputs as sources, and for the
+    weighted row's weight choice (first seed) the inputs minus :func:`validation_inputs`.
+    reconstructors / baselines: override the registries (tests).
+    out_dir: where example images are saved (``examples/<scene>/``); None saves none.
+    on_partial: called with the results so far after the network, the baselines and each reconstructor
+    (long runs can save what they have).
+    """
+    t_start = time.perf_counter()
+    ev = start_scene(scene, cfg, out_dir)
+    ev.on_partial = on_partial
+    ev.res["view_synthesis"] = {}
+    ev.res.update({sec: {} for sec in PLANNED_SECTIONS})
+    t0 = time.perf_counter()
+    network_synthesis(ev, network)
+    ev.res["timings"]["network"] = time.perf_counter() - t0
+    ev.partial()
+    t0 = time.perf_counter()
+    baseline_synthesis(ev, baselines if baselines is not None else baseline_fns(cfg.baselines))
+    ev.res["timings"]["baselines"] = time.perf_counter() - t0
+    ev.partial()
+    densification(ev, reconstructors)
+    ev.res["status"] = "ok"
+    ev.res["timings"]["total"] = time.perf_counter() - t_start
+    return ev.res
+
+
+def camera_plot(inputs: Scene, planned: list[Frame], held: list[Frame], path: Path, name: str) -> None:
+    try:
+        plot_cameras(inputs, planned, held, path=path, title=f"{name}: inputs, planned (synthesized), held-out")
+    except Exception as e:  # a missing plot is not worth failing the evaluation
+        log.warning("camera plot failed: %s", e)

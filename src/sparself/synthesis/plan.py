@@ -1,0 +1,528 @@
+"""The paper's novel-pose plan (section 3.2): midpoints between consecutive views and extrapolations
+beyond the ends of the capture path.
+
+A planned pose is the LERP of two camera centres and the shortest-arc SLERP of their rotations
+(:func:`sparself.geometry.interpolate_pose`), at t = 0.5 between two consecutive views and at t = 1.2
+past the last (and, mirrored, the first) view. By default 8 midpoints + 2 extrapolations = 10 new poses,
+the paper's 25 + 10 setting.
+
+Design decisions (documented here because they change which poses come out):
+
+* **Which views are consecutive.** ``order="capture"`` takes the scene's frame order. ``"nearest"``
+  builds a greedy nearest-neighbour path (distance = camera-centre distance in units of the scene
+  scale + rotation angle in radians, so a rotation-only capture still orders). ``"auto"`` keeps the
+  capture order unless its path is more than ``AUTO_RATIO`` (1.5x) longer than the nearest-neighbour
+  path: a real sequential capture walks about as far as the greedy path (often less), a shuffled or
+  name-sorted unordered set walks many times further.
+* **Which gaps get a midpoint.** There are N - 1 gaps for ``n_mid`` midpoints. ``gaps="even"`` (default)
+  spreads them evenly along the path, as the paper's evenly captured 25 views imply, so the new views
+  cover the whole trajectory. ``gaps="largest"`` takes the widest gaps (centre distance + rotation, as
+  above) instead, which suits uneven captures. When ``n_mid > N - 1`` it is capped at N - 1 (logged).
+* **Extrapolations.** They alternate between the end (pair (N-2, N-1), t = 1.2) and the start
+  (pair (1, 0), t = 1.2); a second one at the same end continues further (t = 1.4, 1.6, ...).
+* **Fractional index.** A planned frame's ``index`` is the LERP of its pair's indices at the same t
+  (3.5 between frames 3 and 4; N - 1 + 0.2 past the end; -0.2 before the start). When the frames'
+  own indices are not monotonic along the path (a nearest-neighbour path through an unordered set),
+  positions along the path are used instead. :func:`plan_sequence` returns the targets together with
+  the scene re-indexed along the path, so sources and targets share one index scale — use it where the
+  order may be a nearest-neighbour path (training and synthesis read the indices).
+
+Cost: the nearest-neighbour path is O(N^2) time and O(N) memory (one distance row at a time), so
+500 views plan in well under a second.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from sparself.capture.images import IMAGE_EXTENSIONS
+from sparself.capture.scene import Frame, Scene
+from sparself.core.errors import ConfigError, InputError
+from sparself.core.geometry import Pose, interpolate_pose
+from sparself.core.names import check_names
+from sparself.core.options import option
+from sparself.core.outputs import atomic_file
+
+log = logging.getLogger(__name__)
+
+AUTO_RATIO = 1.5  # "auto" switches to the nearest-neighbour path when capture order walks this much further
+PLAN_FORMAT = "sparself-plan"
+PLAN_VERSION = 1
+
+
+@dataclass
+class PlanConfig:
+    """How many novel poses to plan and where (each field's help is its documentation; the order rules
+    are in the module docstring)."""
+
+    n_mid: int = option(8, "midpoints between consecutive views (the paper: 8)")
+    n_extra: int = option(2, "extrapolated poses past the ends of the path (the paper: 2)")
+    t_mid: float = option(0.5, "interpolation parameter of a midpoint")
+    t_extra: float = option(1.2, "extrapolation parameter past the pair's second view")
+    order: str = option(
+        "auto",
+        "which views are consecutive: capture order, a nearest-neighbour path, or "
+        "auto (capture order unless it walks 1.5x further than the nearest-neighbour path)",
+        choices=("auto", "capture", "nearest"),
+    )
+    gaps: str = option(
+        "even", "which gaps get midpoints: spread evenly or the widest ones", choices=("even", "largest")
+    )
+
+    def validate(self) -> None:
+        if int(self.n_mid) != self.n_mid or self.n_mid < 0:
+            raise ConfigError(f"n_mid must be a non-negative integer, got {self.n_mid}")
+        if int(self.n_extra) != self.n_extra or self.n_extra < 0:
+            raise ConfigError(f"n_extra must be a non-negative integer, got {self.n_extra}")
+        if not (0.0 < self.t_mid < 1.0):
+            raise ConfigError(f"t_mid must lie strictly between 0 and 1, got {self.t_mid}")
+        if not (self.t_extra > 1.0 and math.isfinite(self.t_extra)):
+            raise ConfigError(f"t_extra must be a finite number > 1, got {self.t_extra}")
+        if self.order not in ("auto", "capture", "nearest"):
+            raise ConfigError(f"order must be auto, capture or nearest, got {self.order!r}")
+        if self.gaps not in ("even", "largest"):
+            raise ConfigError(f"gaps must be even or largest, got {self.gaps!r}")
+        if self.n_mid == 0 and self.n_extra == 0:
+            raise ConfigError("--n-mid 0 and --n-extra 0 plan no novel pose at all; give one of them above 0")
+
+
+# ---- ordering ------------------------------------------------------------------------------------
+
+
+def _step_costs(centers: np.ndarray, quats: np.ndarray, scale: float, i: int, js: np.ndarray) -> np.ndarray:
+    """Distance from view i to views js: centre distance / scale + rotation angle (rad). -> (len(js),)"""
+    d = np.linalg.norm(centers[js] - centers[i], axis=1) / scale
+    dots = np.clip(np.abs(quats[js] @ quats[i]), 0.0, 1.0)
+    return d + 2.0 * np.arccos(dots)
+
+
+def path_length(scene: Scene, order: np.ndarray) -> float:
+    """Length of the path visiting the views in ``order`` (same distance as the ordering uses)."""
+    centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
+    order = np.asarray(order)
+    if len(order) < 2:
+        return 0.0
+    d = np.linalg.norm(np.diff(centers[order], axis=0), axis=1) / scale
+    dots = np.clip(np.abs(np.sum(quats[order[1:]] * quats[order[:-1]], axis=1)), 0.0, 1.0)
+    return float(np.sum(d + 2.0 * np.arccos(dots)))
+
+
+def _greedy_path(centers: np.ndarray, quats: np.ndarray, scale: float, start: int) -> np.ndarray:
+    n = len(centers)
+    visited = np.zeros(n, dtype=bool)
+    order = np.empty(n, dtype=np.int64)
+    cur = start
+    for k in range(n):
+        order[k] = cur
+        visited[cur] = True
+        if k == n - 1:
+            break
+        rest = np.flatnonzero(~visited)
+        cur = int(rest[np.argmin(_step_costs(centers, quats, scale, cur, rest))])
+    return order
+
+
+def nearest_neighbour_order(scene: Scene) -> np.ndarray:
+    """A short path through all views: greedy nearest neighbour, O(N^2) time, O(N) memory.
+
+    Started from three candidates (frame 0, the view farthest from the centroid, and the view farthest
+    from that one — the ends of an open arc), keeping the shortest; deterministic. -> (N,) frame indices.
+    """
+    centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
+    far1 = int(np.argmax(np.linalg.norm(centers - centers.mean(0), axis=1)))
+    far2 = int(np.argmax(_step_costs(centers, quats, scale, far1, np.arange(len(centers)))))
+    best, best_len = None, np.inf
+    for s in dict.fromkeys([0, far1, far2]):  # ordered, without repeats
+        o = _greedy_path(centers, quats, scale, s)
+        length = path_length(scene, o)
+        if length < best_len - 1e-12:
+            best, best_len = o, length
+    if best is None:  # every length is inf or NaN
+        raise InputError(
+            f"{scene.source or 'scene'}: camera positions too far apart to plan a path "
+            "(distances overflow); check the pose file's translations"
+        )
+    # Present the path in the direction that agrees with capture order where it can (stable output).
+    if best[0] > best[-1]:
+        best = best[::-1].copy()
+    return best
+
+
+def order_frames(scene: Scene, order: str = "auto") -> np.ndarray:
+    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``."""
+    n = len(scene)
+    capture = np.arange(n)
+    if order == "capture" or n < 3:
+        return capture
+    nn = nearest_neighbour_order(scene)
+    if order == "nearest":
+        return nn
+    if order != "auto":
+        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
+    cap_len, nn_len = path_length(scene, capture), path_length(scene, nn)
+    if cap_len > AUTO_RATIO * nn_len:
+        log.info(
+            "capture order walks %.2fx the nearest-neighbour path: treating the views as unordered",
+            cap_len / max(nn_len, 1e-12),
+        )
+        return nn
+    return capture
+
+
+def _indices_along(scene: Scene, seq: np.ndarray) -> np.ndarray:
+    """Index of each view along the path: the frames' own when monotonic along it, else positions."""
+    own = np.array([scene.frames[i].index for i in seq], dtype=np.float64)
+    steps = np.diff(own)
+    if len(own) < 2 or np.all(steps > 0) or np.all(steps < 0):
+        return own
+    log.info("frame indices are not monotonic along the path; planned indices count positions along it")
+    return np.arange(len(seq), dtype=np.float64)
+
+
+def reindexed(scene: Scene, seq: np.ndarray) -> Scene:
+    """The scene with its frames in path order and each frame's index = the index the plan uses for it.
+
+    Use it with a plan made with ``order="nearest"`` so source and planned frames share one index scale.
+    """
+    idx = _indices_along(scene, np.asarray(seq))
+    frames = [replace(scene.frames[i], index=float(k)) for i, k in zip(seq, idx)]
+    return replace(scene, frames=frames)
+
+
+# ---- the plan ------------------------------------------------------------------------------------
+
+
+def novel_name(index: float) -> str:
+    """File name of a planned view: ``novel_0003.50.png`` for index 3.5. It sorts by index only for
+    index >= 0; the written dense scene prefixes a rank (``sparself.io.dense.rank_names``) so that
+    names sort in its order for any index."""
+    return f"novel_{index:07.2f}.png"
+
+
+def _choose_gaps(scene: Scene, seq: np.ndarray, n_mid: int, how: str) -> np.ndarray:
+    n_gaps = len(seq) - 1
+    if n_mid > n_gaps:
+        log.warning(
+            "asked for %d midpoints but %d views have only %d gaps: planning %d", n_mid, len(seq), n_gaps, n_gaps
+        )
+        n_mid = n_gaps
+    if n_mid == 0:
+        return np.zeros(0, dtype=np.int64)
+    if how == "largest":
+        centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
+        widths = np.array(
+            [_step_costs(centers, quats, scale, seq[g], np.array([seq[g + 1]]))[0] for g in range(n_gaps)]
+        )
+        # stable sort: among equal gaps the earlier wins, so the result is deterministic
+        return np.sort(np.argsort(-widths, kind="stable")[:n_mid])
+    # Evenly spread: the centre of each of n_mid equal stretches of the path, symmetric about its middle.
+    return np.floor((np.arange(n_mid) + 0.5) * n_gaps / n_mid).astype(np.int64)
+
+
+def _planned(scene: Scene, ia: int, ib: int, index_a: float, index_b: float, t: float) -> Frame:
+    fa, fb = scene.frames[ia], scene.frames[ib]
+    pose = interpolate_pose(fa.pose, fb.pose, t)
+    index = round(float(index_a + t * (index_b - index_a)), 9)  # -0.2, not -0.19999999999999996
+    cam = fa.camera_id if t <= 0.5 else fb.camera_id  # the camera of the nearer view
+    return Frame(name=novel_name(index), pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
+
+
+def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
+    """Novel poses for ``scene``: midpoints between consecutive views and extrapolations past the ends.
+
+    Returns Frames sorted by index, each with pose, camera_id, fractional index, a ``novel_*.png`` name,
+    ``path=None`` and ``synthetic=True`` (targets for a synthesizer). Raises InputError for fewer than
+    3 views, ConfigError for a bad config.
+    """
+    cfg = cfg or PlanConfig()
+    cfg.validate()
+    n = len(scene)
+    if n < 3:
+        src = scene.source or "scene"
+        raise InputError(f"{src}: needs at least 3 posed views to plan novel poses, got {n}")
+    seq = order_frames(scene, cfg.order)
+    idx = _indices_along(scene, seq)
+    out: list[Frame] = []
+    for g in _choose_gaps(scene, seq, int(cfg.n_mid), cfg.gaps):
+        out.append(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], cfg.t_mid))
+        a, b = scene.frames[seq[g]], scene.frames[seq[g + 1]]
+        if np.allclose(a.pose.w2c(), b.pose.w2c(), atol=1e-9):
+            log.warning(
+                "%s and %s have the same pose: the midpoint between them repeats it (--gaps largest skips such gaps)",
+                a.name,
+                b.name,
+            )
+    for k in range(int(cfg.n_extra)):
+        t = 1.0 + (k // 2 + 1) * (cfg.t_extra - 1.0)
+        if k % 2 == 0:  # past the end: pair (N-2, N-1)
+            out.append(_planned(scene, seq[-2], seq[-1], idx[-2], idx[-1], t))
+        else:  # before the start: pair (1, 0)
+            out.append(_planned(scene, seq[1], seq[0], idx[1], idx[0], t))
+    out.sort(key=lambda f: f.index)
+    return out
+
+
+def plan_sequence(scene: Scene, cfg: PlanConfig | None = None) -> tuple[Scene, list[Frame]]:
+    """The plan together with the source scene on the same index scale: ``(sources, targets)``.
+
+    ``sources`` is the scene with its frames in path order and their indices as the plan counts them
+    (the scene unchanged for a capture-order plan of a normally indexed scene); use it, not ``scene``,
+    for training and synthesis when the order may be a nearest-neighbour path, so that a target's
+    fractional index sits between the indices of the views it was planned between.
+    """
+    cfg = cfg or PlanConfig()
+    targets = plan_poses(scene, cfg)
+    return reindexed(scene, order_frames(scene, cfg.order)), targets
+
+
+# ---- plan files ----------------------------------------------------------------------------------
+
+
+def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None, cfg: PlanConfig | None = None) -> Path:
+    """Write planned frames as JSON, atomically. qvec/tvec (COLMAP world-to-camera) are what
+    :func:`load_plan` reads; c2w and centre are there for people and other tools to read."""
+    path = Path(path)
+    doc = {
+        "format": PLAN_FORMAT,
+        "version": PLAN_VERSION,
+        "convention": "qvec [qw,qx,qy,qz] and tvec are COLMAP world-to-camera; c2w uses OpenCV camera axes",
+        "source": str(Path(scene.source).resolve()) if scene is not None and scene.source is not None else None,
+        **(_source_record(scene) if scene is not None else {}),
+        "config": asdict(cfg) if cfg is not None else None,
+        "n_source_views": len(scene) if scene is not None else None,
+        "cameras": (
+            {
+                str(cid): {"model": c.model, "width": c.width, "height": c.height, "params": list(c.params)}
+                for cid, c in scene.cameras.items()
+            }
+            if scene is not None
+            else None
+        ),
+        "frames": [
+            {
+                "name": f.name,
+                "index": float(f.index),
+                "camera_id": int(f.camera_id),
+                "qvec": [float(v) for v in f.pose.qvec],
+                "tvec": [float(v) for v in f.pose.tvec],
+                "center": [float(v) for v in f.pose.center],
+                "c2w": [[float(v) for v in row] for row in f.pose.c2w()[:3]],
+            }
+            for f in frames
+        ],
+    }
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    with atomic_file(path) as tmp:
+        tmp.write_text(text + "\n")
+    return path
+
+
+def _source_record(scene: Scene) -> dict:
+    """What identifies the source scene in a plan file: its views' names and where its cameras are."""
+    return {
+        "source_frames": [f.name for f in scene.frames],
+        "source_center": [float(v) for v in scene.centers().mean(0)],
+        "source_scale": float(scene.scale()),
+    }
+
+
+def _check_source(path: Path, doc: dict, scene: Scene) -> None:
+    """Refuse a plan made for another scene: other views, other cameras, or indices the scene lacks."""
+    src = doc.get("source") or "another scene"
+    names, n = doc.get("source_frames"), doc.get("n_source_views")
+    if isinstance(n, int) and n != len(scene):
+        raise InputError(
+            f"{path}: plan was made for {n} views ({src}), this scene has {len(scene)} "
+            f"({scene.source}); make a new plan with `sparself plan`"
+        )
+    if isinstance(names, list) and sorted(map(str, names)) != sorted(f.name for f in scene.frames):
+        odd = sorted(set(map(str, names)) ^ {f.name for f in scene.frames})
+        raise InputError(
+            f"{path}: plan was made for other views ({src}; in only one of the two: "
+            f"{', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''}); make a new plan for "
+            f"{scene.source} with `sparself plan`"
+        )
+    c, sc = doc.get("source_center"), doc.get("source_scale")
+    if isinstance(c, list) and isinstance(sc, (int, float)) and len(c) == 3 and len(scene) > 0:
+        try:
+            c, sc = np.asarray(c, float), float(sc)
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{path}: source_center/source_scale are not numbers") from None
+        moved = float(np.linalg.norm(c - scene.centers().mean(0)))
+        if moved > 1e-3 * max(float(sc), 1e-12) or abs(float(sc) - scene.scale()) > 1e-3 * max(float(sc), 1e-12):
+            raise InputError(
+                f"{path}: plan was made for cameras elsewhere ({src}): same view names, other "
+                f"poses; make a new plan for {scene.source} with `sparself plan`"
+            )
+    for cid, rec in (doc.get("cameras") or {}).items():
+        cam = scene.cameras.get(int(cid)) if str(cid).isdigit() else None
+        if (
+            cam is not None
+            and isinstance(rec, dict)
+            and (rec.get("width"), rec.get("height")) != (cam.width, cam.height)
+        ):
+            raise InputError(
+                f"{path}: plan's camera {cid} is {rec.get('width')}x{rec.get('height')}, the scene's "
+                f"is {cam.width}x{cam.height} ({scene.source}); make a new plan with `sparself plan`"
+            )
+
+
+def _check_indices(path: Path, frames: list[Frame], scene: Scene) -> None:
+    """Planned indices must lie among (or just past) the scene's: a plan for a longer capture does not."""
+    own = np.array([f.index for f in scene.frames], dtype=np.float64)
+    if not len(own) or not frames:
+        return
+    lo, hi = own.min(), own.max()
+    span = max(hi - lo, 1.0)
+    bad = [f for f in frames if not lo - span <= f.index <= hi + span]
+    if bad:
+        raise InputError(
+            f"{path}: planned index {bad[0].index:g} ({bad[0].name}) is far outside this scene's "
+            f"views {lo:g}..{hi:g}: the plan was made for another scene"
+        )
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"non-finite number {name}")
+
+
+def _vector(path: Path, i: int, rec: dict, key: str, n: int) -> np.ndarray:
+    try:
+        v = np.asarray(rec[key], dtype=np.float64)
+    except KeyError:
+        raise InputError(f"{path}: frame {i} has no {key!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{path}: frame {i}: {key} is not a list of numbers") from None
+    if v.size != n:
+        raise InputError(f"{path}: frame {i}: {key} must have {n} numbers, got {v.size}")
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{path}: frame {i}: {key} contains NaN or inf")
+    return v.reshape(-1)
+
+
+def load_plan(path: Path, scene: Scene, *, check_source: bool = True) -> list[Frame]:
+    """Read a plan written by :func:`save_plan`; camera ids must exist in ``scene``.
+
+    Raises InputError naming the file on unreadable or invalid JSON, an unknown version, no frames,
+    NaN/inf, wrong shapes, unknown cameras, or a c2w that disagrees with qvec/tvec (someone edited one and
+    not the other). check_source: also refuse a plan made for another scene (other number of views, view
+    names, camera poses or image size, as recorded by :func:`save_plan`; indices far outside the scene's).
+    A plan without a version (written by hand) is read as version 1.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(), parse_constant=_reject_constant)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text (JSON) file") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{path}: invalid JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
+    except ValueError as e:
+        raise InputError(f"{path}: invalid plan ({e})") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    if not isinstance(doc, dict) or doc.get("format") != PLAN_FORMAT or not isinstance(doc.get("frames"), list):
+        raise InputError(f"{path}: not a sparself plan (expected format {PLAN_FORMAT!r} with a 'frames' list)")
+    if doc.get("version", PLAN_VERSION) != PLAN_VERSION:
+        raise InputError(
+            f"{path}: plan version {doc.get('version')!r} is not one this sparself reads "
+            f"(version {PLAN_VERSION}); make the plan again with `sparself plan`"
+        )
+    if not doc["frames"]:
+        raise InputError(
+            f"{path}: the plan has no frames, so there is nothing to synthesize "
+            "(make it with --n-mid or --n-extra above 0)"
+        )
+    if check_source:
+        _check_source(path, doc, scene)
+    frames = [_plan_frame(path, i, rec, scene) for i, rec in enumerate(doc["frames"])]
+    # planned names become files beside the scene's own images: checked before anything is written
+    check_names([f.name for f in frames], path, what="frame name", extensions=IMAGE_EXTENSIONS)
+    if check_source:
+        _check_indices(path, frames, scene)
+    return frames
+
+
+def _plan_frame(path: Path, i: int, rec: object, scene: Scene) -> Frame:
+    """Frame ``i`` of a plan file, every field checked (InputError naming the file and the frame)."""
+    if not isinstance(rec, dict):
+        raise InputError(f"{path}: frame {i} is not an object")
+    q = _vector(path, i, rec, "qvec", 4)
+    t = _vector(path, i, rec, "tvec", 3)
+    if np.linalg.norm(q) < 1e-9:
+        raise InputError(f"{path}: frame {i}: qvec is zero")
+    try:
+        pose = Pose(q, t)
+        pose.R  # normalises qvec: fails when its norm overflows
+    except ValueError:
+        raise InputError(f"{path}: frame {i}: qvec is not a usable rotation") from None
+    if "c2w" in rec:
+        c2w = _vector(path, i, rec, "c2w", 12).reshape(3, 4)
+        if np.abs(c2w - pose.c2w()[:3]).max() > 1e-6:
+            raise InputError(f"{path}: frame {i}: c2w disagrees with qvec/tvec (edit both, or drop c2w)")
+    try:
+        index = float(rec["index"])
+        cam = int(rec.get("camera_id", 1))
+    except (KeyError, TypeError, ValueError, OverflowError):
+        raise InputError(f"{path}: frame {i}: missing or non-numeric index/camera_id") from None
+    if not math.isfinite(index):
+        raise InputError(f"{path}: frame {i}: index is not finite")
+    if cam not in scene.cameras:
+        raise InputError(f"{path}: frame {i}: camera {cam} is not a camera of the scene (has {sorted(scene.cameras)})")
+    name = rec.get("name") or novel_name(index)
+    return Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
+
+
+# ---- the `sparself plan` command ------------------------------------------------------------------
+
+
+def make_plan(
+    scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: Path | None = None, overwrite: bool = False
+) -> list[Frame]:
+    """Read a scene, plan its novel poses, write the plan JSON (and optionally a camera plot).
+
+    Both files are written atomically and only after everything succeeded; an existing output file is
+    refused unless ``overwrite``. Returns the planned frames.
+    """
+    from sparself.capture.io import read_scene
+    from sparself.core.errors import OutputError
+    from sparself.core.outputs import Input, check_not_input, real, scene_inputs
+
+    out = Path(out)
+    if plot is not None and Path(plot).suffix.lower() != ".png":
+        raise OutputError(f"{plot}: the camera plot is written as PNG; give a .png file name")
+    if plot is not None and real(plot) == real(out):
+        raise OutputError(f"--plot {plot} and --out {out} are the same file; give each its own name")
+    outs = [out] + ([Path(plot)] if plot is not None else [])
+    for p in outs:
+        check_not_input(p, [Input("scene", scene_path)])
+        if p.exists() and not overwrite:
+            raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
+        if p.exists() and p.is_dir():
+            raise OutputError(f"{p}: is a folder, expected a file path")
+    cfg = cfg or PlanConfig()
+    cfg.validate()
+    scene = read_scene(Path(scene_path))
+    for p in outs:
+        check_not_input(p, scene_inputs(scene))
+    frames = plan_poses(scene, cfg)
+    try:
+        if plot is None:
+            save_plan(out, frames, scene=scene, cfg=cfg)
+        else:
+            from sparself.capture.plot import plot_cameras
+
+            with atomic_file(Path(plot)) as tmp_png:
+                plot_cameras(scene, frames, path=tmp_png)
+                save_plan(out, frames, scene=scene, cfg=cfg)  # the plot is renamed into place after this
+    except OSError as e:
+        raise OutputError(f"{e.filename or out}: cannot write ({e.strerror or e})") from None
+    log.debug("planned %d novel poses for %d views -> %s", len(frames), len(scene), out)
+    return frames
