@@ -18,6 +18,7 @@ from pathlib import Path
 from sparself import __version__
 from sparself.core.errors import SparselfError
 from sparself.core.interrupts import signals_interrupt, stopped_by
+from sparself.core.locks import output_lock
 from sparself.core.logs import BarSafeHandler, Repeats
 
 log = logging.getLogger("sparself")
@@ -66,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     pkg.setLevel(level)
     pkg.propagate = False
     try:
-        with signals_interrupt():
+        # one writer per output for the whole command: a second one into the same --out is refused
+        with signals_interrupt(), output_lock(getattr(args, "out", None)):
             return int(args.func(args) or 0)
     except SparselfError as e:
         if args.debug:

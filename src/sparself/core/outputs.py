@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Iterable, Iterator, NamedTuple
 
 from sparself.core.errors import OutputError
+from sparself.core.locks import output_lock
 
 log = logging.getLogger(__name__)
 
@@ -256,27 +257,62 @@ def fill_in_place(tmp: Path, r_out: Path) -> None:
     """Where ``r_out`` cannot be replaced by a rename: empty it (it was checked as replaceable), then move
     the entries of ``tmp`` in one by one, the marker first, each with an atomic rename."""
     r_out.mkdir(parents=True, exist_ok=True)
-    for p in r_out.iterdir():
-        if p != tmp:
-            _remove(p)
+    old = [p for p in r_out.iterdir() if p != tmp]
+    if old and not (r_out / MARKER).is_file():
+        raise OutputError(f"{r_out}: files that sparself did not write appeared there while this command ran")
+    for p in old:
+        _remove(p)
     entries = sorted(tmp.iterdir(), key=lambda p: (p.name != MARKER, p.name))
     for p in entries:
         _move_into(p, r_out)
     shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _swap_in(tmp: Path, r_out: Path) -> None:
-    """Rename ``tmp`` to ``r_out``; an old ``r_out`` is renamed aside first and removed after, so that
-    a failed rename puts it back. Raises OSError (EBUSY, EXDEV, ...) when ``r_out`` cannot be renamed."""
-    old = None
-    if os.path.lexists(r_out):
-        old = r_out.parent / f".{r_out.name}.tmp-{os.getpid()}-old"
-        os.rename(r_out, old)
+def identity(path: Path | str) -> tuple[int, int] | None:
+    """(device, inode) of what is at ``path`` now (None: nothing): tells the folder checked at the start
+    from one that appeared there while the command ran."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _put_aside(r_out: Path, checked: tuple[int, int] | None) -> Path | None:
+    """Rename the old output aside, if it is the folder checked at the start and still only holds what
+    sparself wrote (or nothing); whatever else is there is left in place (the rename over it then fails)."""
+    if checked is None or identity(r_out) != checked:
+        return None
+    old = r_out.parent / f".{r_out.name}.tmp-{os.getpid()}-old"
+    os.rename(r_out, old)
+    if (old / MARKER).is_file() or not any(old.iterdir()):
+        return old
+    os.rename(old, r_out)  # filled by someone else meanwhile: not ours to delete
+    return None
+
+
+_TAKEN = (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR)  # rename onto something that is there
+
+
+def _swap_in(tmp: Path, r_out: Path, checked: tuple[int, int] | None) -> None:
+    """Rename ``tmp`` to ``r_out``; the old output (``checked``: the one found at the start) is renamed
+    aside first and removed after, so that a failed rename puts it back. A rename never replaces a
+    non-empty folder, so one that appeared at ``r_out`` meanwhile survives: the result is then kept
+    beside it and an OutputError says where. Raises OSError (EBUSY, EXDEV, ...) when ``r_out`` cannot
+    be renamed."""
+    old = _put_aside(r_out, checked)
     try:
         os.rename(tmp, r_out)
-    except OSError:
+    except OSError as e:
         if old is not None:
             os.rename(old, r_out)
+        if e.errno in _TAKEN:
+            kept = r_out.parent / f"{r_out.name}.sparself-{os.getpid()}"
+            os.rename(tmp, kept)
+            raise OutputError(
+                f"{r_out}: something else was put there while this command ran, so it was left as it is; "
+                f"the result is in {kept}"
+            ) from None
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
@@ -289,23 +325,30 @@ def atomic_dir(out: Path, overwrite: bool = False, inputs: Iterable[Input] = ())
     """Yield a temporary folder beside ``out``; on success it replaces ``out``, on error it is removed.
     ``out`` may be a symlink: the folder it points to is written. A mount point is filled in place."""
     out = Path(out)
-    check_output_dir(out, overwrite, inputs)
-    r_out = real(out)
-    inside = _in_place(r_out)
-    tmp = _make_temp(out, lambda prefix, d: tempfile.mkdtemp(prefix=prefix, dir=d), inside=inside)
-    _usual_mode(tmp, 0o777)  # mkdtemp makes 0700
-    try:
-        write_marker(tmp)
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with output_lock(out):
+        check_output_dir(out, overwrite, inputs)
+        r_out = real(out)
+        checked = identity(r_out)
+        inside = _in_place(r_out)
+        tmp = _make_temp(out, lambda prefix, d: tempfile.mkdtemp(prefix=prefix, dir=d), inside=inside)
+        _usual_mode(tmp, 0o777)  # mkdtemp makes 0700
+        try:
+            write_marker(tmp)
+            yield tmp
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        _finish(out, tmp, r_out, checked, inside)
+
+
+def _finish(out: Path, tmp: Path, r_out: Path, checked: tuple[int, int] | None, inside: bool) -> None:
+    """Put the finished ``tmp`` in place of ``r_out`` (see :func:`_swap_in`); on failure remove it."""
     try:
         if inside:
             fill_in_place(tmp, r_out)
             return
         try:
-            _swap_in(tmp, r_out)
+            _swap_in(tmp, r_out, checked)
         except OSError as e:
             if e.errno not in _NO_RENAME:
                 raise
