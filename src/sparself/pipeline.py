@@ -43,8 +43,9 @@ class DensifyConfig:
     )
 
 
-def read_input(path: Path, cfg: DensifyConfig) -> Scene:
-    """A scene from anything read_scene accepts, else a folder of photos posed with SfM."""
+def read_input(path: Path, cfg: DensifyConfig, out: Path | None = None) -> Scene:
+    """A scene from anything read_scene accepts, else a folder of photos posed with SfM (its scratch
+    folder beside ``out``)."""
     try:
         sio.detect_format(path)
     except InputError:
@@ -52,7 +53,7 @@ def read_input(path: Path, cfg: DensifyConfig) -> Scene:
     else:
         return sio.read_scene(path)  # a broken pose file is reported, not silently replaced by SfM
     log.info("%s: no poses found; recovering them with structure from motion", path)
-    scene, _ = recover_poses(path, cfg.sfm)  # it logs what was registered and what not
+    scene, _ = recover_poses(path, cfg.sfm, beside=out)  # it logs what was registered and what not
     return scene
 
 
@@ -68,7 +69,7 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     out = Path(out)
     given = isinstance(photos_or_scene, Scene)
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
-    scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg)
+    scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg, out)
     check_output_dir(out, cfg.overwrite, scene_inputs(scene))  # before any training
     photos = scene  # at their own size: triangulation matches them at up to 800 px
     if cfg.out_size:

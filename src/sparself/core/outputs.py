@@ -216,6 +216,21 @@ def _make_temp(out: Path, make, inside: bool = False) -> Path:
         raise OutputError(f"{out}: cannot write there ({e.strerror or e})") from None
 
 
+@contextlib.contextmanager
+def scratch_dir(out: Path | str | None, tag: str) -> Iterator[Path]:
+    """A folder for intermediate files, removed after: beside ``out`` and named as its temporary folders
+    (so that a later run removes it when this process is killed), or in the system temp when ``out`` is None."""
+
+    def make(prefix: str, folder: Path | None) -> str:
+        return tempfile.mkdtemp(prefix=f"{prefix}{tag}-", dir=folder)
+
+    d = Path(make("sparself-", None)) if out is None else _make_temp(Path(out), make, inside=_in_place(real(out)))
+    try:
+        yield d
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
 def _usual_mode(path: Path, mode: int) -> None:
     """Give ``path`` ``mode`` less the process umask (what a plain open/mkdir would have made)."""
     umask = os.umask(0)

@@ -18,6 +18,7 @@ from sparself.capture.io.dense import read_masks_beside
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose
+from sparself.core.interrupts import import_native
 from sparself.core.names import check_names
 
 log = logging.getLogger(__name__)
@@ -160,7 +161,7 @@ def _check_binary_model(path: Path, stem: str, camera_ids: set[int] | None) -> s
 
 def load_reconstruction(model_dir: Path):
     """pycolmap.Reconstruction of a model folder; unreadable/truncated files -> InputError naming it."""
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     model_dir = Path(model_dir)
     _check_model_files(model_dir)
@@ -285,7 +286,7 @@ def reconstruction_from_scene(scene: Scene):
     """A pycolmap.Reconstruction with the scene's cameras, frames (image ids 1..N in frame order) and
     points with tracks: a frame keeps its SfM observations (``meta['observations']``), any other frame
     (a synthesized view, or a scene read without tracks) observes the points that project into it."""
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     rec = pycolmap.Reconstruction()
     for cid, cam in sorted(scene.cameras.items()):
