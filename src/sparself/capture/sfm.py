@@ -36,6 +36,7 @@ from sparself.capture.posecheck import ImageStats, PoseCheck, Suspect, camera_wa
 from sparself.capture.scene import Scene
 from sparself.core.errors import InputError, RegistrationError
 from sparself.core.interrupts import import_native
+from sparself.core.names import capture_key
 from sparself.core.outputs import scratch_dir
 
 log = logging.getLogger(__name__)
@@ -414,7 +415,7 @@ def image_stats(rec) -> list[ImageStats]:
     """Per registered image of a pycolmap reconstruction: 3D points seen, their mean track length, and the
     mean reprojection error of its own observations (px)."""
     out = []
-    for img in sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name):
+    for img in sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: capture_key(im.name)):
         obs = img.get_observation_points2D()
         if not len(obs):
             out.append(ImageStats(img.name, 0, 0.0, float("inf")))

@@ -10,6 +10,8 @@ import os
 import unicodedata
 from typing import Iterable
 
+from natsort import natsort_keygen, ns
+
 from sparself.core.errors import InputError
 
 _MAX_BYTES = 255  # a file name's limit on common file systems
@@ -77,3 +79,12 @@ def check_names(
             )
             raise InputError(f"{where}: {what} {name!r} {twice}")
         seen[key] = name
+
+
+def capture_key(name: str):
+    """Sort key of a file name in capture order: numbers compared as numbers (``IMG_2`` before ``IMG_10``,
+    as phones and video exports name frames without zero padding), case ignored."""
+    return _NATURAL(name)
+
+
+_NATURAL = natsort_keygen(alg=ns.IGNORECASE)

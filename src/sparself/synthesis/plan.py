@@ -155,23 +155,29 @@ def nearest_neighbour_order(scene: Scene) -> np.ndarray:
 
 
 def order_frames(scene: Scene, order: str = "auto") -> np.ndarray:
-    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``."""
+    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``. When the file
+    names' order (numbers compared as numbers) walks much further than the camera positions' nearest-
+    neighbour path, names and positions disagree: a warning says so and "auto" follows the positions."""
     n = len(scene)
     capture = np.arange(n)
-    if order == "capture" or n < 3:
+    if order not in ("auto", "capture", "nearest"):
+        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
+    if n < 3:
         return capture
     nn = nearest_neighbour_order(scene)
     if order == "nearest":
         return nn
-    if order != "auto":
-        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
-    cap_len, nn_len = path_length(scene, capture), path_length(scene, nn)
-    if cap_len > AUTO_RATIO * nn_len:
-        log.info(
-            "capture order walks %.2fx the nearest-neighbour path: treating the views as unordered",
-            cap_len / max(nn_len, 1e-12),
+    ratio = path_length(scene, capture) / max(path_length(scene, nn), 1e-12)
+    if ratio > AUTO_RATIO:
+        log.warning(
+            "the file names' order walks %.2fx the path through the nearest cameras: names and camera "
+            "positions disagree about the capture order; %s",
+            ratio,
+            "following the positions (--order capture keeps the names' order)"
+            if order == "auto"
+            else "keeping the names' order as asked (--order auto follows the positions)",
         )
-        return nn
+        return nn if order == "auto" else capture
     return capture
 
 

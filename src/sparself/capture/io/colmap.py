@@ -19,7 +19,7 @@ from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose
 from sparself.core.interrupts import import_native
-from sparself.core.names import check_names
+from sparself.core.names import capture_key, check_names
 
 log = logging.getLogger(__name__)
 
@@ -196,7 +196,7 @@ def scene_from_reconstruction(
             raise InputError(f"{where}: camera {cid}: {e}") from None
     check_names([im.name for im in rec.images.values()], where, subfolders=True)  # before any file is touched
     frames, unregistered = [], []
-    for img in sorted(rec.images.values(), key=lambda im: im.name):
+    for img in sorted(rec.images.values(), key=lambda im: capture_key(im.name)):
         if not img.has_pose:
             unregistered.append(img.name)
             continue

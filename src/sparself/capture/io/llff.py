@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.capture.images import image_size_of, list_images
-from sparself.capture.io._common import check_finite, frame_name_order, unique_cameras
+from sparself.capture.io._common import check_finite, frame_name_order, order_frames, unique_cameras
 from sparself.capture.io.dense import read_masks_beside
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
@@ -103,7 +103,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         raise InputError(f"{path}: no {FILENAME} found")
     arr = _load_array(npy)
     image_dir = Path(images) if images is not None else npy.parent / "images"
-    files = list_images(image_dir)
+    files = sorted(list_images(image_dir), key=lambda p: p.name)  # rows follow plain text order, as LLFF's loaders
     check_names([p.name for p in files], image_dir)
     if len(files) != len(arr):
         raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
@@ -151,7 +151,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     scene = Scene(
         cameras=cameras, frames=frames, bounds=bounds, source=npy, meta={"format": "llff", "frame_bounds": frame_bounds}
     )
-    return read_masks_beside(scene, image_dir)
+    return read_masks_beside(order_frames(scene), image_dir)  # indices in capture order
 
 
 def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:
