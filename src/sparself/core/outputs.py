@@ -77,17 +77,23 @@ def scene_folder(source: Path | str) -> Path:
 
 def scene_inputs(scene, what: str = "scene") -> list[Input]:
     """A scene's folder (see :func:`scene_folder`; it holds the pose files), its image folders and the
-    folders of its masks (read back with a dense scene)."""
+    folders of its masks (read back with a dense scene). Linked images (``poses --link-images``) count
+    where they really are: the photo folder behind the links is an input too."""
     found = []
     if getattr(scene, "source", None) is not None:
         found = [Input(f"{what} folder", scene_folder(scene.source))]
-    folders = {Path(f.path).parent for f in scene.frames if f.path is not None}
-    masks = {Path(f.mask).parent for f in scene.frames if f.mask is not None} - folders
+    folders = _folders_of(f.path for f in scene.frames)
+    masks = _folders_of(f.mask for f in scene.frames) - folders
     return (
         found
         + [Input(f"{what}'s image folder", d) for d in sorted(folders)]
         + [Input(f"{what}'s mask folder", d) for d in sorted(masks)]
     )
+
+
+def _folders_of(paths: Iterable[Path | str | None]) -> set[Path]:
+    """The folders of ``paths`` and, for a symbolic link, the folder of the file it points to."""
+    return {d for p in paths if p is not None for d in (Path(p).parent, real(p).parent)}
 
 
 def evaluation_inputs(scenes: Iterable) -> list[Input]:
