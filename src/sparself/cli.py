@@ -20,6 +20,7 @@ from sparself.core.errors import SparselfError
 from sparself.core.interrupts import signals_interrupt, stopped_by
 from sparself.core.locks import output_lock
 from sparself.core.logs import BarSafeHandler, Repeats
+from sparself.core.space import os_error_line
 
 log = logging.getLogger("sparself")
 
@@ -83,6 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `sparself info SCENE | head`: the reader has gone, which is no error of ours
         _drop_stdout()
         return 141  # 128 + SIGPIPE, what a shell reports for a command cut off by its pipe
+    except OSError as e:  # a full disk, a path part over 255 bytes: one line; anything else is a bug
+        line = os_error_line(e, getattr(args, "out", None))
+        if line is None or args.debug:
+            raise
+        print(f"sparself {args.command}: error: {line}", file=sys.stderr)
+        return 2
     finally:
         for rec in repeats.rest():
             handler.handle(rec)
@@ -468,12 +475,23 @@ def _add_densify(sub) -> None:
     p.set_defaults(func=_run_densify)
 
 
+def _positive(text: str) -> int:
+    """A whole number above 0 (argparse reports anything else in one line, before any work)."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n <= 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number of pixels above 0, got {text!r}")
+    return n
+
+
 def _densify_options(p: argparse.ArgumentParser) -> None:
     """The plan, the output size and the training options: shared by `densify` and `batch densify`."""
     _plan_options(p)
     p.add_argument(
         "--out-size",
-        type=int,
+        type=_positive,
         default=None,
         help="long side in px of the written scene and of training (default: as read)",
     )

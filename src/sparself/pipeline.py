@@ -16,9 +16,10 @@ from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
 from sparself.core.options import option
 from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
+from sparself.core.space import MB, check_free_space, files_size
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
 from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
-from sparself.synthesis.train import train
+from sparself.synthesis.train import check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -79,6 +80,8 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     # on the crop size, not on the image size
     long_side = max(max(c.width, c.height) for c in scene.cameras.values())
     tcfg = replace(cfg.train, size=long_side)
+    check_holdout(tcfg.holdout, scene)
+    check_free_space(out, densify_bytes(photos, len(targets), cfg.downscaled))
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
@@ -102,6 +105,14 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         if not cfg.keep_run:
             shutil.rmtree(tmp / "run")
     return dense
+
+
+def densify_bytes(photos: Scene, n_new: int, downscaled: bool) -> int:
+    """About what ``densify`` writes: the photos, as many new views per photo as planned (a synthesized view
+    weighs about a photo), the images_2/4/8 copies (a third more) and the run's checkpoint."""
+    per_view = files_size(f.path for f in photos.frames) / max(len(photos), 1)
+    views = (len(photos) + n_new) * per_view * (4 / 3 if downscaled else 1)
+    return int(views + 64 * MB)
 
 
 def _with_points(scene: Scene, photos: Scene, holdout: tuple[str, ...]) -> Scene:

@@ -38,6 +38,7 @@ from sparself.core.errors import InputError, RegistrationError
 from sparself.core.interrupts import import_native
 from sparself.core.names import capture_key
 from sparself.core.outputs import scratch_dir
+from sparself.core.space import MB, check_free_space, files_size
 
 log = logging.getLogger(__name__)
 
@@ -566,6 +567,8 @@ def poses_to_folder(
     cfg = cfg or SfmConfig()
     inputs = [Input("photo folder", image_folder)]
     check_output_dir(Path(out), overwrite, inputs)
+    # the photos copied (not linked), and SfM's database beside the output while it runs
+    check_free_space(out, (files_size(list_images(image_folder)) if images == "copy" else 0) + 64 * MB)
     scene, report = recover_poses(image_folder, cfg, beside=Path(out))
     scene.meta.pop("sfm_report", None)
     with atomic_dir(Path(out), overwrite, inputs) as tmp:

@@ -17,6 +17,7 @@ from typing import Iterator
 from filelock import FileLock, Timeout
 
 from sparself.core.errors import OutputError
+from sparself.core.names import sibling_stem
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +27,7 @@ _held: dict[Path, int] = {}  # lock files this process holds -> how many nested 
 def lock_path(out: Path | str) -> Path:
     """The lock file of an output: ``.NAME.lock`` beside its real path (symlinks resolved)."""
     r = Path(os.path.realpath(os.path.abspath(os.fspath(out))))
-    return r.parent / f".{r.name}.lock"
+    return r.parent / f".{sibling_stem(r.name)}.lock"
 
 
 def _holder(path: Path) -> str:

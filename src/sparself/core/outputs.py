@@ -20,6 +20,7 @@ from typing import Iterable, Iterator, NamedTuple
 
 from sparself.core.errors import OutputError
 from sparself.core.locks import output_lock
+from sparself.core.names import sibling_stem
 
 log = logging.getLogger(__name__)
 
@@ -196,7 +197,7 @@ def remove_stale_temps(out: Path) -> list[Path]:
     out = Path(out)
     removed = []
     r_out = real(out)
-    prefix = f".{r_out.name}.tmp-"
+    prefix = f".{sibling_stem(r_out.name)}.tmp-"
     for parent in (r_out.parent, r_out):
         if not parent.is_dir():
             continue
@@ -217,7 +218,7 @@ def _make_temp(out: Path, make, inside: bool = False) -> Path:
     try:
         r_out.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temps(out)
-        return Path(make(f".{r_out.name}.tmp-{os.getpid()}-", r_out if inside else r_out.parent))
+        return Path(make(f".{sibling_stem(r_out.name)}.tmp-{os.getpid()}-", r_out if inside else r_out.parent))
     except OSError as e:
         raise OutputError(f"{out}: cannot write there ({e.strerror or e})") from None
 
@@ -265,7 +266,7 @@ def _move_into(src: Path, folder: Path) -> None:
     except OSError as e:
         if e.errno != errno.EXDEV:
             raise
-    staged = folder / f".{folder.name}.tmp-{os.getpid()}-{src.name}"
+    staged = folder / f".{sibling_stem(folder.name)}.tmp-{os.getpid()}-{src.name}"
     if src.is_dir() and not src.is_symlink():
         shutil.copytree(src, staged, symlinks=True)
     else:
@@ -304,7 +305,7 @@ def _put_aside(r_out: Path, checked: tuple[int, int] | None) -> Path | None:
     sparself wrote (or nothing); whatever else is there is left in place (the rename over it then fails)."""
     if checked is None or identity(r_out) != checked:
         return None
-    old = r_out.parent / f".{r_out.name}.tmp-{os.getpid()}-old"
+    old = r_out.parent / f".{sibling_stem(r_out.name)}.tmp-{os.getpid()}-old"
     os.rename(r_out, old)
     if (old / MARKER).is_file() or not any(old.iterdir()):
         return old
@@ -328,7 +329,7 @@ def _swap_in(tmp: Path, r_out: Path, checked: tuple[int, int] | None) -> None:
         if old is not None:
             os.rename(old, r_out)
         if e.errno in _TAKEN:
-            kept = r_out.parent / f"{r_out.name}.sparself-{os.getpid()}"
+            kept = r_out.parent / f"{sibling_stem(r_out.name, room=32)}.sparself-{os.getpid()}"
             os.rename(tmp, kept)
             raise OutputError(
                 f"{r_out}: something else was put there while this command ran, so it was left as it is; "
@@ -401,6 +402,12 @@ def atomic_file(path: Path, inputs: Iterable[Input] = ()) -> Iterator[Path]:
     _usual_mode(tmp, 0o666)  # mkstemp makes 0600; results should get the usual file mode
     try:
         yield tmp
+    except RuntimeError:  # torch.save reports a full disk as a RuntimeError ("file write failed")
+        full = shutil.disk_usage(tmp.parent).free < 2**20
+        tmp.unlink(missing_ok=True)
+        if full:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path)) from None
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
