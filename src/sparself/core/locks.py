@@ -70,16 +70,13 @@ def _acquire(path: Path, out: Path | str) -> FileLock:
 
 
 def _make_parents(folder: Path) -> list[Path]:
-    """Create ``folder`` and its missing parents; returns those created, deepest first."""
+    """Create ``folder`` and its missing parents; returns those created, deepest first. Raises OSError."""
     made = []
     p = folder
     while not p.exists():
         made.append(p)
         p = p.parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"{folder}: cannot create it ({e.strerror or e})") from None
+    folder.mkdir(parents=True, exist_ok=True)
     return made
 
 
@@ -99,13 +96,14 @@ def output_lock(out: Path | str | None) -> Iterator[None]:
         finally:
             _held[path] -= 1
         return
-    made = _make_parents(path.parent)
+    made: list[Path] = []
     try:
+        made = _make_parents(path.parent)
         lock = _acquire(path, out)
     except OutputError:
         _remove_empty(made)
         raise
-    except OSError as e:  # e.g. a read-only parent: the command's own checks say so in their words
+    except OSError as e:  # a read-only parent, a file on the way: the command's own checks say so in their words
         log.debug("%s: no lock taken (%s)", out, e)
         _remove_empty(made)
         yield
