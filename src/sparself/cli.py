@@ -487,8 +487,13 @@ def _positive(text: str) -> int:
 
 
 def _densify_options(p: argparse.ArgumentParser) -> None:
-    """The plan, the output size and the training options: shared by `densify` and `batch densify`."""
+    """The plan, the test split, the output size and the training options: shared by `densify` and
+    `batch densify`."""
+    from sparself.core.options import add_options
+    from sparself.pipeline import DensifyConfig
+
     _plan_options(p)
+    add_options(p, DensifyConfig, skip=tuple(n for n in DensifyConfig.__dataclass_fields__ if n != "test_split"))
     p.add_argument(
         "--out-size",
         type=_positive,
@@ -507,6 +512,7 @@ def _densify_config(args, **kw):
         out_size=args.out_size,
         downscaled=args.downscaled,
         triangulate=args.triangulate,
+        test_split=args.test_split,
         **kw,
     )
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from sparself.capture import io as sio
+from sparself.capture.io.dense import positional_test
 from sparself.capture.plot import plot_cameras
 from sparself.capture.scene import Scene, preloaded
 from sparself.capture.sfm import SfmConfig, recover_poses
@@ -19,7 +20,7 @@ from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inp
 from sparself.core.space import MB, check_free_space, files_size
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
 from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
-from sparself.synthesis.train import check_holdout, train
+from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -41,6 +42,11 @@ class DensifyConfig:
         True,
         "write a capture without sparse points without them (by default they are "
         "triangulated from its real photos at their known poses)",
+    )
+    test_split: bool = option(
+        True,
+        "use every photo for training and synthesis and write no test split (by default the photos that "
+        "position-based loaders test, every 8th of all images, feed neither and form the test split)",
     )
 
 
@@ -80,19 +86,23 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     # on the crop size, not on the image size
     long_side = max(max(c.width, c.height) for c in scene.cameras.values())
     tcfg = replace(cfg.train, size=long_side)
+    if cfg.test_split and not tcfg.holdout:
+        tcfg = replace(tcfg, holdout=test_positions(scene, targets))
     check_holdout(tcfg.holdout, scene)
     check_free_space(out, densify_bytes(photos, len(targets), cfg.downscaled))
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
-        syn = synthesize_with_confidence(run, scene, targets)
+        syn = synthesize_with_confidence(run, scene.without(tcfg.holdout), targets)
         # points only for the written scene: training and synthesis are the same with or without them
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        dense = densify_scene(written, targets, syn.images, syn.confidence)
+        dense = densify_scene(written, targets, syn.images, syn.confidence, syn.made_from)
         sio.write_scene_into(
             dense,
             tmp / "scene",
-            dense=sio.DenseInfo("../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled),
+            dense=sio.DenseInfo(
+                "../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled, cfg.test_split
+            ),
         )
         # the plan and a camera plot beside the scene, so users see where the new views are
         save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
@@ -105,6 +115,22 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         if not cfg.keep_run:
             shutil.rmtree(tmp / "run")
     return dense
+
+
+def test_positions(scene: Scene, targets: list) -> tuple[int, ...]:
+    """Positions in ``scene`` of the photos that position-based loaders will test in the written dense scene
+    (kept out of training and synthesis); none, with a warning, when too few photos would be left to train."""
+    names = positional_test(list(scene.frames) + [replace(t, synthetic=True) for t in targets]) or []
+    held = tuple(i for i, f in enumerate(scene.frames) if f.name in names)
+    if len(scene) - len(held) < MIN_TRAIN:
+        log.warning(
+            "%d photos: too few to keep the %d test photos out of training and synthesis; they feed both "
+            "(the test split is still written)",
+            len(scene),
+            len(held),
+        )
+        return ()
+    return held
 
 
 def densify_bytes(photos: Scene, n_new: int, downscaled: bool) -> int:

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from sparself.capture import io as sio
+from sparself.capture.io.dense import MADE_FROM, MadeFrom
 from sparself.capture.scene import Frame, Scene, one_size
 from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
@@ -48,6 +50,7 @@ class Synthesized:
 
     images: np.ndarray
     confidence: np.ndarray
+    made_from: list[MadeFrom] = field(default_factory=list)  # per view: the photos that fed it
 
 
 def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
@@ -86,9 +89,11 @@ def synthesize_with_confidence(run_or_model, scene: Scene, targets: list[Frame])
         queries = flow_aligned(sources, queries)
     with autocast(dev, amp_dtype(run.cfg.amp, dev)):
         out, conf = render_with_confidence(model, sources, queries)
+    names = tuple(scene.frames[int(i)].name for i in sources.order)
     return Synthesized(
         out.float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32),
         conf.float().clamp(0, 1)[:, 0].cpu().numpy().astype(np.float32),
+        [MadeFrom(tuple(names[int(j)] for j in s), names) for s in queries.sets],
     )
 
 
@@ -99,10 +104,15 @@ def synthesizer(run_or_model):
 
 
 def densify_scene(
-    scene: Scene, targets: list[Frame], images: np.ndarray, confidence: np.ndarray | None = None
+    scene: Scene,
+    targets: list[Frame],
+    images: np.ndarray,
+    confidence: np.ndarray | None = None,
+    made_from: Sequence[MadeFrom] = (),
 ) -> Scene:
     """The scene with the synthesized frames added (``image`` set, ``synthetic=True``, and ``confidence``
-    (T, H, W) when given: written as ``masks/``), ordered by index."""
+    (T, H, W) when given: written as ``masks/``), ordered by index; ``made_from`` (per target: the photos
+    that fed it) goes to ``meta`` and from there to ``sparself.json``."""
     if len(targets) != len(images):
         raise ValueError(f"{len(targets)} targets but {len(images)} images")
     confs = [None] * len(targets) if confidence is None else list(confidence)
@@ -111,7 +121,10 @@ def densify_scene(
         for t, img, c in zip(targets, images, confs)
     ]
     frames = sorted(list(scene.frames) + new, key=lambda f: f.index)
-    return replace(scene, frames=frames, meta=dict(scene.meta, synthesized=len(new)))
+    meta = dict(scene.meta, synthesized=len(new))
+    if made_from:
+        meta[MADE_FROM] = {t.name: m for t, m in zip(targets, made_from)}
+    return replace(scene, frames=frames, meta=meta)
 
 
 def _check_order(run_path: Path, plan: Path) -> None:
@@ -158,7 +171,8 @@ def synthesize_plan(
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))
     syn = synthesize_with_confidence(run, scene, targets)
-    dense = densify_scene(ensure_points(scene) if triangulate else scene, targets, syn.images, syn.confidence)
+    written = ensure_points(scene) if triangulate else scene
+    dense = densify_scene(written, targets, syn.images, syn.confidence, syn.made_from)
     return sio.write_scene(
         dense, Path(out), overwrite=overwrite, dense=sio.DenseInfo(str(run_path), str(plan), downscale=downscaled)
     )

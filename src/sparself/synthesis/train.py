@@ -245,6 +245,9 @@ def log_memory_estimate(est: dict[str, int], device: torch.device, available: in
         log.info("%s", text)
 
 
+MIN_TRAIN = 3  # training frames a run needs (each is predicted from the others)
+
+
 def check_holdout(holdout: Sequence[int], scene: Scene) -> None:
     """Refuse --holdout positions that are not frames of ``scene`` (ConfigError naming them)."""
     bad = [i for i in holdout if not 0 <= i < len(scene)]
@@ -259,8 +262,8 @@ def _training_frames(scene: Scene, cfg: TrainConfig) -> Scene:
     """The scene minus ``cfg.holdout`` (never loaded), at one image size."""
     check_holdout(cfg.holdout, scene)
     kept = scene.without(cfg.holdout)
-    if len(kept) < 3:
-        raise InputError(f"need at least 3 training frames, got {len(kept)} (scene {scene.source})")
+    if len(kept) < MIN_TRAIN:
+        raise InputError(f"need at least {MIN_TRAIN} training frames, got {len(kept)} (scene {scene.source})")
     return one_size(kept)
 
 
