@@ -171,6 +171,9 @@ def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:
     return (float(near), float(far)) if 0 < near < far else None
 
 
+APPROX_WARN = 0.01  # LLFF's one focal and centred principal point off by more than 1 %: worth a warning
+
+
 def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     """(N, 17) LLFF rows in image-name order and the frame index of each row.
 
@@ -180,7 +183,7 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     order = frame_name_order(scene)
     known = scene.meta.get("frame_bounds") or {}
     global_bounds = None
-    rows, approx = [], []
+    rows, approx, material = [], [], False
     for i in order:
         f, cam = scene.frames[i], scene.camera(i)
         if (
@@ -189,6 +192,8 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
             or abs(cam.cy - cam.height / 2) > 0.5
         ):
             approx.append(f"{f.name} (fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f})")
+            off = max(abs(cam.fx - cam.fy) / cam.fx, abs(cam.cx / cam.width - 0.5), abs(cam.cy / cam.height - 0.5))
+            material |= off > APPROX_WARN
         b = known.get(f.name) or _frame_bounds(scene, i)
         if b is None:
             global_bounds = global_bounds or scene.depth_bounds()
@@ -196,7 +201,8 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
         m = np.concatenate([c2w_to_llff(f.pose.c2w()), [[cam.height], [cam.width], [cam.fx]]], axis=1)
         rows.append(np.concatenate([m.ravel(), b]))
     if approx:  # once per write: a scene with one camera per photo would repeat it for every photo
-        log.warning(
+        log.log(
+            logging.WARNING if material else logging.INFO,
             "LLFF stores one focal and a centred principal point; the camera of %d view(s) is approximated, e.g. %s",
             len(approx),
             approx[0],
