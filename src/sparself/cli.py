@@ -629,7 +629,7 @@ def _run_batch(args) -> int:
         f"({sum(u.skipped for u in done)} by an earlier run), {len(res.failed)} failed -> {args.out / 'report.md'}"
     )
     for u in res.failed:
-        print(f"  failed: {u.capture} (seed {u.seed}): {u.error}", file=sys.stderr)
+        print(f"  failed: {u.label(args.kind)}: {u.error}", file=sys.stderr)
     return 1 if res.failed else 0
 
 
