@@ -165,6 +165,8 @@ def load_reconstruction(model_dir: Path):
 
     model_dir = Path(model_dir)
     _check_model_files(model_dir)
+    _check_unique_ids(model_dir / "images.txt", image_lines=True)  # pycolmap would stop on a failed C++ check
+    _check_unique_ids(model_dir / "cameras.txt")
     try:
         return pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises plain RuntimeError/ValueError on malformed files
@@ -173,6 +175,26 @@ def load_reconstruction(model_dir: Path):
             f"({str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__}); "
             "a file may be truncated or corrupt"
         ) from None
+
+
+def _check_unique_ids(path: Path, image_lines: bool = False) -> None:
+    """Refuse a text model file that gives one id (its first field) to two entries. In ``images.txt`` each
+    image takes two lines, the second (its 2D points, maybe empty) read as it is, as COLMAP reads it."""
+    if not path.is_file():
+        return
+    seen: dict[str, int] = {}
+    lines = iter(enumerate(path.read_text(errors="replace").splitlines(), 1))
+    for no, line in lines:
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        if image_lines:
+            next(lines, None)
+        key = line.split()[0]
+        if key in seen:
+            what = "IMAGE_ID" if image_lines else "CAMERA_ID"
+            raise InputError(f"{path}: line {no}: {what} {key} is already used on line {seen[key]}; ids must be unique")
+        seen[key] = no
 
 
 def scene_from_reconstruction(
