@@ -58,3 +58,22 @@ def test_names_that_disagree_with_the_positions_are_reported_even_with_q(tmp_pat
     lines = [ln for ln in err.splitlines() if ln.startswith("WARNING:")]
     assert len(lines) == 1 and "names and camera positions disagree" in lines[0], err
     assert ("following the positions" in lines[0]) == (order == "auto")
+
+
+def test_info_summarises_one_camera_per_photo_and_lists_them_in_json(tmp_path, capsys):
+    """Phones vary the focal length, so SfM gives each photo its camera: one line with the ranges, not 12
+    blocks (and the median step follows the capture order IMG_1, IMG_2, ...)."""
+    from sparself.capture.scene import Camera
+
+    s = _scene([0.1 * i for i in range(N)])
+    s.cameras = {i + 1: Camera.pinhole(NW, NH, 20.0 + i) for i in range(N)}
+    for i, f in enumerate(s.frames):
+        f.camera_id = i + 1
+    folder = write_posed(tmp_path / "scene", s, "colmap")
+    code, out, _ = run(capsys, "info", folder)
+    assert code == 0
+    cams = [ln for ln in out.splitlines() if ln.startswith("camera ") or ln.startswith("cameras:")]
+    assert cams == [f"cameras:       {N} cameras (PINHOLE), fx 20–31 px, fy 20–31 px (--json lists each)"], out
+    assert "median step:   0.1 between consecutive views" in out
+    code, out, _ = run(capsys, "info", folder, "--json")
+    assert sorted(round(c["fx"]) for c in json.loads(out)["cameras"].values()) == list(range(20, 32))
