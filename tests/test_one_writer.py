@@ -96,3 +96,33 @@ def test_the_lock_is_shared_by_nested_holds_and_leaves_nothing(tmp_path):
     with output_lock(tmp_path / "other" / "D"):
         pass
     assert sorted(p.name for p in tmp_path.iterdir()) == ["new"]  # created parents removed again
+
+
+def test_overwrite_names_what_a_user_added_to_a_sparself_output(tmp_path, caplog):
+    import logging
+
+    out = tmp_path / "D"
+    with atomic_dir(out) as tmp:
+        (tmp / "scene").mkdir()
+    (out / "notes.txt").write_text("mine")
+    with caplog.at_level(logging.WARNING, logger="sparself"):
+        with atomic_dir(out, overwrite=True) as tmp:
+            (tmp / "scene").mkdir()
+    said = [r.getMessage() for r in caplog.records]
+    assert said == [f"{out}: --overwrite also removes 1 entry sparself did not write there: notes.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "scene"]
+
+
+def test_plan_overwrite_replaces_only_a_plan(tmp_path, capsys):
+    from test_bad_input import make_scene, write_posed
+
+    scene = write_posed(tmp_path / "scene", make_scene(5), "llff")
+    other = tmp_path / "afile.txt"
+    other.write_text("my notes")
+    code, _, err = run(capsys, "plan", scene, "--out", other, "--overwrite")
+    one_error(code, err, "plan", str(other), "not a plan sparself wrote")
+    assert other.read_text() == "my notes"
+    plan = tmp_path / "plan.json"
+    for _ in range(2):  # a plan is replaced
+        code, _, err = run(capsys, "plan", scene, "--out", plan, "--overwrite", "-q")
+        assert code == 0, err

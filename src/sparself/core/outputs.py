@@ -121,6 +121,15 @@ def check_output_dir(out: Path, overwrite: bool = False, inputs: Iterable[Input]
                 "replace it; delete it yourself or choose another --out"
             )
         _check_deletable(real(out))
+        extra = added_since(out)
+        if extra:
+            log.warning(
+                "%s: --overwrite also removes %d entr%s sparself did not write there: %s",
+                out,
+                len(extra),
+                "y" if len(extra) == 1 else "ies",
+                ", ".join(extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else ""),
+            )
     if _in_place(real(out)):
         _check_writable_folder(out, real(out))
     else:
@@ -245,11 +254,28 @@ def _usual_mode(path: Path, mode: int) -> None:
     os.chmod(path, mode & ~umask)
 
 
-def write_marker(folder: Path) -> None:
-    """Mark ``folder`` as written by sparself (what --overwrite may replace)."""
+def write_marker(folder: Path, entries: Iterable[str] = ()) -> None:
+    """Mark ``folder`` as written by sparself (what --overwrite may replace), listing the ``entries`` it
+    wrote there (so that --overwrite can name what a user added since)."""
     from sparself import __version__
 
-    (Path(folder) / MARKER).write_text(f"written by sparself {__version__}; --overwrite may replace this folder\n")
+    head = f"written by sparself {__version__}; --overwrite may replace this folder\n"
+    (Path(folder) / MARKER).write_text(head + "".join(f"{_LISTED}{e}\n" for e in sorted(entries)))
+
+
+_LISTED = "wrote: "
+
+
+def added_since(folder: Path) -> list[str]:
+    """Entries of a sparself folder that its marker does not list (put there by someone else); [] when
+    the marker lists nothing (written by an older version, or a run folder that grows as it trains)."""
+    try:
+        listed = [
+            ln[len(_LISTED) :] for ln in (Path(folder) / MARKER).read_text().splitlines() if ln.startswith(_LISTED)
+        ]
+    except OSError:
+        return []
+    return sorted(p.name for p in Path(folder).iterdir() if p.name not in {MARKER, *listed}) if listed else []
 
 
 def _remove(p: Path) -> None:
@@ -366,6 +392,7 @@ def atomic_dir(out: Path, overwrite: bool = False, inputs: Iterable[Input] = ())
 def _finish(out: Path, tmp: Path, r_out: Path, checked: tuple[int, int] | None, inside: bool) -> None:
     """Put the finished ``tmp`` in place of ``r_out`` (see :func:`_swap_in`); on failure remove it."""
     try:
+        write_marker(tmp, [p.name for p in tmp.iterdir() if p.name != MARKER])
         if inside:
             fill_in_place(tmp, r_out)
             return

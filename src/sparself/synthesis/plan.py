@@ -489,6 +489,17 @@ def _plan_frame(path: Path, i: int, rec: object, scene: Scene) -> Frame:
 # ---- the `sparself plan` command ------------------------------------------------------------------
 
 
+def _replaceable(path: Path, plan: bool) -> bool:
+    """What --overwrite may replace: a plan file (its JSON says so) or, for the plot, a PNG image."""
+    try:
+        if plan:
+            return json.loads(path.read_text()).get("format") == PLAN_FORMAT
+        with open(path, "rb") as f:
+            return f.read(8) == b"\x89PNG\r\n\x1a\n"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def make_plan(
     scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: Path | None = None, overwrite: bool = False
 ) -> list[Frame]:
@@ -513,6 +524,9 @@ def make_plan(
             raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
         if p.exists() and p.is_dir():
             raise OutputError(f"{p}: is a folder, expected a file path")
+        if p.exists() and not _replaceable(p, plan=p == out):
+            what = "a plan sparself wrote" if p == out else "a PNG image"
+            raise OutputError(f"{p}: not {what}, so --overwrite does not replace it; choose another name")
     cfg = cfg or PlanConfig()
     cfg.validate()
     scene = read_scene(Path(scene_path))
