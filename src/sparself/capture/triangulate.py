@@ -21,8 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sparself.capture.io.colmap import Observations
-from sparself.capture.scene import MIN_POINTS, Camera, Scene
+from sparself.capture.scene import MIN_POINTS, Camera, Observations, Scene
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +46,7 @@ class Triangulated:
     """points: (P, 3) float64 world points; colors: (P, 3) in [0, 1] (mean of the observed pixels).
     views: frames used; pairs: frame pairs matched; matches: matches passing the ratio and mutual tests;
     kept: pairwise triangulations passing the geometric checks; seconds: wall time; observations: each
-    frame's keypoints in the points' tracks, by frame name (``Scene.meta['observations']``: what a written
+    frame's keypoints in the points' tracks, by frame name (``Scene.observations``: what a written
     COLMAP model keeps as its tracks, instead of projecting every point into every view)."""
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -248,10 +247,10 @@ def triangulate(scene: Scene, config: TriangulateConfig | None = None) -> Triang
 
 
 def with_points(scene: Scene, tri: Triangulated) -> Scene:
-    """``scene`` with the triangulated points, their colours (uint8 ``meta['point_colors']``, as the
-    COLMAP and PLY writers read them) and tracks (``meta['observations']``), replacing the scene's own."""
-    meta = dict(scene.meta, point_colors=np.round(tri.colors * 255).astype(np.uint8), observations=tri.observations)
-    return replace(scene, points=tri.points, meta=meta)
+    """``scene`` with the triangulated points, their colours (uint8 ``point_colors``, as the
+    COLMAP and PLY writers read them) and tracks (``observations``), replacing the scene's own."""
+    colors = np.round(tri.colors * 255).astype(np.uint8)
+    return replace(scene, points=tri.points, point_colors=colors, observations=dict(tri.observations))
 
 
 def ensure_points(scene: Scene, photos: Scene | None = None, config: TriangulateConfig | None = None) -> Scene:

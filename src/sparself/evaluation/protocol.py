@@ -139,7 +139,7 @@ def plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[lis
 def scene_name(scene: Scene) -> str:
     """The capture's folder name (a pose file's folder: ``middlebury_dinoSparseRing``, not ``dinoSR_par.txt``)."""
     if scene.source is None:
-        return str(scene.meta.get("name", "scene"))
+        return "scene"
     return name_from_source(scene.source)
 
 
@@ -253,8 +253,7 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
             f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
             "the reconstructors start without sparse points"
         )
-        meta = {k: v for k, v in full.meta.items() if k not in ("point_colors", "observations")}  # the capture's
-        return replace(full, points=None, meta=meta)
+        return replace(full, points=None, point_colors=None, observations={})  # the capture's
     return with_points(full, tri)
 
 

@@ -187,7 +187,7 @@ def write_scene_into(
             replace(f, path=dst if images != "none" else f.path, image=None if images != "none" else f.image)
         )
     write_marker(folder)
-    written = replace(scene, frames=new_frames, source=folder, meta=dict(scene.meta))
+    written = replace(scene, frames=new_frames, source=folder, observations=dict(scene.observations))
     masks = images != "none" and any(f.confidence is not None or f.mask is not None for f in scene.frames)
     if masks:  # synthesized views' confidence (nerfstudio's mask_path), or the masks a scene was read with
         _dense.write_masks(folder, written, _dense.FACTORS if dense.downscale else ())

@@ -128,7 +128,7 @@ def synthetic_ext(real_names: Sequence[str]) -> str:
 
 def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     """The dense scene as written: frames in :func:`safe_order`, renamed with rank prefixes; its split;
-    and each written frame's original name. Observations in ``meta`` follow the renaming."""
+    and each written frame's original name. Observations follow the renaming."""
     frames = sorted(scene.frames, key=lambda f: f.index)
     flags = [f.synthetic for f in frames]
     order = safe_order(flags)
@@ -160,11 +160,8 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     train = tuple(n for f, n in zip(frames, names) if f.name not in held)
     split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
     renamed = [replace(f, name=n) for f, n in zip(frames, names)]
-    meta = dict(scene.meta)
-    obs = meta.get("observations")
-    if obs:
-        meta["observations"] = {n: obs[f.name] for f, n in zip(frames, names) if f.name in obs}
-    return replace(scene, frames=renamed, meta=meta), split, [f.name for f in frames]
+    obs = {n: scene.observations[f.name] for f, n in zip(frames, names) if f.name in scene.observations}
+    return replace(scene, frames=renamed, observations=obs), split, [f.name for f in frames]
 
 
 def write_split_files(folder: Path, split: Split) -> None:

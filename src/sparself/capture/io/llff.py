@@ -93,7 +93,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
 
     If the images are smaller than the stored [H, W] (a downscaled ``images_4`` folder passed as
     ``images``), focal lengths are scaled to them, as NeRF's loader does.
-    ``Scene.bounds`` = (min near, max far); per-view bounds are in ``meta['frame_bounds']`` by name.
+    ``Scene.bounds`` = (min near, max far); per-view bounds are in ``frame_bounds`` by name.
     Masks beside the images (``masks/`` for ``images/``, ``masks_4/`` for ``images_4/``; ``<stem>.png`` for
     every image) become the frames' ``mask`` (:func:`sparself.io.dense.read_masks_beside`).
     """
@@ -149,7 +149,12 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         f.camera_id = cid
     bounds = (float(arr[:, 15].min()), float(arr[:, 16].max()))
     scene = Scene(
-        cameras=cameras, frames=frames, bounds=bounds, source=npy, meta={"format": "llff", "frame_bounds": frame_bounds}
+        cameras=cameras,
+        frames=frames,
+        bounds=bounds,
+        source=npy,
+        source_format="llff",
+        frame_bounds=frame_bounds,
     )
     return read_masks_beside(scene, image_dir)
 
@@ -174,11 +179,11 @@ def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:
 def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     """(N, 17) LLFF rows in image-name order and the frame index of each row.
 
-    Near/far per view: ``meta['frame_bounds']`` if it has the frame, else from the sparse points in
+    Near/far per view: ``frame_bounds`` if it has the frame, else from the sparse points in
     view, else the scene's global :meth:`Scene.depth_bounds`.
     """
     order = frame_name_order(scene)
-    known = scene.meta.get("frame_bounds") or {}
+    known = scene.frame_bounds
     global_bounds = None
     rows, approx = [], []
     for i in order:

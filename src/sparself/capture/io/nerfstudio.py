@@ -159,11 +159,11 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
-    scene = Scene(cameras=cameras, frames=frames, source=js, meta={"format": "nerfstudio"})
+    scene = Scene(cameras=cameras, frames=frames, source=js, source_format="nerfstudio")
     if isinstance(meta.get("ply_file_path"), str) and (js.parent / meta["ply_file_path"]).is_file():
         scene.points, colors = _read_ply(js.parent / meta["ply_file_path"])
         if colors is not None:
-            scene.meta["point_colors"] = colors
+            scene.point_colors = colors
     return order_frames(scene)
 
 
@@ -225,7 +225,7 @@ def write_nerfstudio(
     out_dir.mkdir(parents=True, exist_ok=True)
     d = transforms_dict(scene, image_prefix, split, masks)
     if "ply_file_path" in d:
-        _write_ply(out_dir / d["ply_file_path"], np.asarray(scene.points), scene.meta.get("point_colors"))
+        _write_ply(out_dir / d["ply_file_path"], np.asarray(scene.points), scene.point_colors)
     out = out_dir / FILENAME
     out.write_text(json.dumps(d, indent=2))
     return out
