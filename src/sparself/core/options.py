@@ -75,7 +75,7 @@ def _type(kind: str):
 
 
 def add_options(
-    p: argparse.ArgumentParser,
+    p: argparse._ActionsContainer,  # a parser or an argument group
     cls,
     skip: tuple[str, ...] = (),
     *,
@@ -91,7 +91,7 @@ def add_options(
             continue
         note = (notes or {}).get(f.name, "")
         flag, kind = md["flag"] or "--" + f.name.replace("_", "-"), _kind(f)
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
         given = argparse.SUPPRESS if unset else default
         if kind == "bool":
             neg = default is True

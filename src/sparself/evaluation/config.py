@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from sparself.core.errors import ConfigError
 from sparself.core.options import option
@@ -20,7 +21,7 @@ POINTS_CHOICES = ("inputs", "capture")  # where the inputs' sparse points come f
 VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight
 
 # what --quick changes
-QUICK = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
+QUICK: dict[str, Any] = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
 
 
 @dataclass

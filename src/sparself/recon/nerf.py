@@ -21,6 +21,7 @@ import contextlib
 import dataclasses
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -85,7 +86,7 @@ def scene_normalization(scene: Scene) -> tuple[np.ndarray, float]:
     """
     if scene.points is not None and len(scene.points) >= 20:
         p = np.asarray(scene.points, dtype=np.float64)
-        c = np.median(p, axis=0)
+        c: np.ndarray = np.median(p, axis=0)
         r = float(np.percentile(np.linalg.norm(p - c, axis=1), 90))
         if r > 1e-9:
             return c, r
@@ -150,7 +151,7 @@ class _Field(torch.nn.Module):
         return sigma, rgb
 
     def tv(self) -> torch.Tensor:
-        loss = 0.0
+        loss = self.grids[0].new_zeros(())  # exactly 0.0 + the terms, on the grids' device
         for g in self.grids:
             loss = (
                 loss
@@ -173,7 +174,7 @@ def _render_rays(
     jitter: torch.Generator | None,
 ) -> torch.Tensor:
     """Volume-render rays o, d (R, 3) -> colours (R, 3). Samples log-uniform in depth in [near, far]."""
-    R, kw = o.shape[0], dict(dtype=o.dtype, device=o.device)
+    R, kw = o.shape[0], dict[str, Any](dtype=o.dtype, device=o.device)
     u = (torch.arange(n_samples, **kw) + 0.5).expand(R, n_samples)
     if jitter is not None:
         u = u + (torch.rand(R, n_samples, generator=jitter, **kw) - 0.5)

@@ -107,7 +107,8 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     check_names([p.name for p in files], image_dir)
     if len(files) != len(arr):
         raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
-    frames, cams, frame_bounds, scaled = [], [], {}, {}
+    frames, cams, frame_bounds = [], [], {}
+    scaled: dict[tuple, list[str]] = {}  # image size -> the views scaled to it
     for i, (row, img) in enumerate(zip(arr, files)):
         m = row[:15].reshape(3, 5)
         R = m[:, :3]
