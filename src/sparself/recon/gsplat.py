@@ -182,7 +182,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
         )
         if strategy is not None:
             strategy.step_pre_backward(params, optimizers, state, step, info)
-        loss = photometric_loss(torch, render, images[i][None], cfg.ssim_lambda, weights[i])
+        loss = photometric_loss(render, images[i][None], cfg.ssim_lambda, weights[i])
         loss.backward()
         if strategy is not None:
             strategy.step_post_backward(params, optimizers, state, step, info, packed=False)
@@ -225,41 +225,19 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
     return params
 
 
-def ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
-    """Mean SSIM of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
-    return ssim_map(torch, a, b, window, sigma).mean()
+def photometric_loss(render, gt, ssim_lambda: float, weight=None):
+    """The 3DGS loss (1 - lambda) L1 + lambda (1 - SSIM) of (B, H, W, 3) images (kornia's SSIM map, 11-tap
+    Gaussian window, borders reflected). weight: per-pixel loss weights (H, W) (a frame's weight x its
+    confidence, :meth:`Scene.pixel_weight`) or None (all 1: the plain loss). Weighted, each term is the mean
+    over pixels of weight x the pixel's error, so a frame of weight w counts w times a real one and a pixel
+    of weight 0 has no gradient."""
+    from kornia.metrics import ssim
 
-
-def photometric_loss(torch, render, gt, ssim_lambda: float, weight=None):
-    """The 3DGS loss (1 - lambda) L1 + lambda (1 - SSIM) of (B, H, W, 3) images. weight: per-pixel loss
-    weights (H, W) (a frame's weight x its confidence, :meth:`Scene.pixel_weight`) or None (all 1: the
-    plain loss). Weighted, each term is the mean over pixels of weight x the pixel's error, so a frame
-    of weight w counts w times a real one and a pixel of weight 0 has no gradient."""
+    dssim = 1 - ssim(render.permute(0, 3, 1, 2), gt.permute(0, 3, 1, 2), 11)  # (B, 3, H, W)
     if weight is None:
-        l1 = (render - gt).abs().mean()
-        return (1 - ssim_lambda) * l1 + ssim_lambda * (1 - ssim_torch(torch, render, gt))
+        return (1 - ssim_lambda) * (render - gt).abs().mean() + ssim_lambda * dssim.mean()
     l1 = (weight[None, :, :, None] * (render - gt).abs()).mean()
-    dssim = (weight[None, None] * (1 - ssim_map(torch, render, gt))).mean()
-    return (1 - ssim_lambda) * l1 + ssim_lambda * dssim
-
-
-def ssim_map(torch, a, b, window: int = 11, sigma: float = 1.5):
-    """Per-pixel SSIM (B, 3, H, W) of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
-    import torch.nn.functional as F
-
-    x = a.permute(0, 3, 1, 2)
-    y = b.permute(0, 3, 1, 2)
-    g = torch.exp(-((torch.arange(window, device=a.device) - window // 2) ** 2) / (2 * sigma**2))
-    g = (g / g.sum()).float()
-    k = (g[:, None] * g[None, :]).expand(3, 1, window, window).contiguous()
-
-    def blur(z):
-        return F.conv2d(z, k, padding=window // 2, groups=3)
-
-    mx, my = blur(x), blur(y)
-    sxx, syy, sxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
-    c1, c2 = 0.01**2, 0.03**2
-    return ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2))
+    return (1 - ssim_lambda) * l1 + ssim_lambda * (weight[None, None] * dssim).mean()
 
 
 __all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]
