@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import torch
 import torch.nn as nn
@@ -385,10 +385,9 @@ def match_cost(c: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return total / (n * (n - 1) // 2)
 
 
-DECODERS: dict[str, type[Decoder]] = {
-    "sweep": SweepDecoder,
-    "fc": FCDecoder,
-}  # name -> class (each has ``reads_sources``)
+DecoderName = Literal["sweep", "fc"]  # the keys of DECODERS
+# name -> class (each has ``reads_sources``)
+DECODERS: dict[str, type[Decoder]] = {"sweep": SweepDecoder, "fc": FCDecoder}
 
 
 def _volume(sources: "Sources", queries: "Queries", b: int, crop: "Crop") -> torch.Tensor:
