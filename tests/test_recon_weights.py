@@ -19,7 +19,7 @@ from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.results import MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED
 from sparself.evaluation.split import make_split
 from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_inputs
-from sparself.recon.gsplat import photometric_loss
+from sparself.recon.common import photometric_loss
 from sparself.recon.nerf import fit as nerf_fit
 from sparself.recon.nerf import weighted_mse
 from sparself.recon.splat import SplatConfig

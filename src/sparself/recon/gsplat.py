@@ -15,6 +15,7 @@ import numpy as np
 from sparself.capture.scene import MIN_POINTS, Camera, Scene
 from sparself.core.errors import SparselfError
 from sparself.core.geometry import Pose
+from sparself.recon.common import frustum_points, photometric_loss
 
 log = logging.getLogger(__name__)
 
@@ -118,29 +119,13 @@ def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) ->
     return pts, np.full_like(pts, 0.5)
 
 
-def frustum_points(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(about n, 3) random world points: n / len(scene) per camera (at least 1), uniform over its image
-    and log-uniform in depth between the scene's depth bounds."""
-    near, far = scene.depth_bounds()
-    pts = []
-    per = max(1, n // max(len(scene), 1))
-    for i, f in enumerate(scene.frames):
-        cam = scene.camera(i)
-        u = rng.uniform(0, cam.width, per)
-        v = rng.uniform(0, cam.height, per)
-        z = np.exp(rng.uniform(np.log(near), np.log(far), per))
-        pc = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
-        pts.append((pc - f.pose.tvec) @ f.pose.R)  # R^T (x - t)
-    return np.concatenate(pts)
-
-
 def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> GsplatRenderer:
     """Fit 3D Gaussians to every frame of ``scene`` with gsplat on CUDA.
 
     Raises SparselfError (before any work) when gsplat or CUDA is missing.
     """
     gsplat, torch = _require_gsplat()
-    from sparself.recon.nerf import prepare_fit
+    from sparself.recon.common import prepare_fit
 
     scene, cfg = prepare_fit(scene, GsplatConfig, config, overrides, "gsplat")
     from tqdm.auto import tqdm
@@ -223,21 +208,6 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
         }
     )
     return params
-
-
-def photometric_loss(render, gt, ssim_lambda: float, weight=None):
-    """The 3DGS loss (1 - lambda) L1 + lambda (1 - SSIM) of (B, H, W, 3) images (kornia's SSIM map, 11-tap
-    Gaussian window, borders reflected). weight: per-pixel loss weights (H, W) (a frame's weight x its
-    confidence, :meth:`Scene.pixel_weight`) or None (all 1: the plain loss). Weighted, each term is the mean
-    over pixels of weight x the pixel's error, so a frame of weight w counts w times a real one and a pixel
-    of weight 0 has no gradient."""
-    from kornia.metrics import ssim
-
-    dssim = 1 - ssim(render.permute(0, 3, 1, 2), gt.permute(0, 3, 1, 2), 11)  # (B, 3, H, W)
-    if weight is None:
-        return (1 - ssim_lambda) * (render - gt).abs().mean() + ssim_lambda * dssim.mean()
-    l1 = (weight[None, :, :, None] * (render - gt).abs()).mean()
-    return (1 - ssim_lambda) * l1 + ssim_lambda * (weight[None, None] * dssim).mean()
 
 
 __all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]

@@ -315,7 +315,7 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
     """Gaussians at the SfM points (at most ``init_points``, coloured from the training views), topped up to
     ``init_points`` with random points in the cameras' depth-bounded frusta when there are fewer (all random
     without SfM points); isotropic, scale = mean distance to 3 neighbours."""
-    from sparself.recon.gsplat import frustum_points
+    from sparself.recon.common import frustum_points
 
     pts = np.zeros((0, 3))
     if scene.points is not None and len(scene.points) >= MIN_POINTS:
@@ -407,7 +407,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
     config: a :class:`SplatConfig`; keyword overrides replace its fields. Deterministic for ``config.seed``.
     """
-    from sparself.recon.nerf import at_most_threads, prepare_fit
+    from sparself.recon.common import at_most_threads, prepare_fit
 
     scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, "3dgs")
     cfg = dataclasses.replace(cfg, steps=max(cfg.steps, cfg.min_steps_per_view * len(scene)))
@@ -416,7 +416,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
-    from sparself.recon.gsplat import photometric_loss
+    from sparself.recon.common import photometric_loss
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
