@@ -35,11 +35,10 @@ class DensifyConfig:
     out_size: int | None = None
     overwrite: bool = False
     keep_run: bool = True
-    downscaled: bool = option(True, "write images_2/4/8 copies beside images/ (off: large scenes)")
+    downscaled: bool = option(True, "write images_2/4/8 copies beside images/ (worth turning off for large scenes)")
     triangulate: bool = option(
         True,
-        "triangulate sparse points for a capture that has none, from its real photos at their known "
-        "poses (off: write it without points)",
+        "triangulate sparse points for a capture that has none, from its real photos at their known poses",
     )
 
 
