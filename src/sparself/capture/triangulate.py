@@ -178,7 +178,7 @@ def _tracks(views: list[_View], nodes: np.ndarray, pts: np.ndarray) -> tuple[np.
         xy = views[v].xy[used[sel] - offsets[v]]
         h, w = views[v].image.shape[:2]
         colors[sel] = views[v].image[np.clip(xy[:, 1].astype(int), 0, h - 1), np.clip(xy[:, 0].astype(int), 0, w - 1)]
-    cols = np.stack([np.bincount(lab, colors[:, d], len(tracks)) for d in range(3)], 1)
+    cols: np.ndarray = np.stack([np.bincount(lab, colors[:, d], len(tracks)) for d in range(3)], 1)  # float sums
     cols /= np.bincount(lab, minlength=len(tracks))[:, None]
     keep = good[lab]
     members = np.stack([view_of, np.cumsum(good)[lab] - 1, used - offsets[view_of]], 1)[keep]
@@ -230,7 +230,8 @@ def triangulate(scene: Scene, config: TriangulateConfig | None = None) -> Triang
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one thread: the same matches every run
     try:
-        sift = cv2.SIFT_create(nfeatures=cfg.features)
+        # cv2's type stubs lack this function
+        sift = cv2.SIFT_create(nfeatures=cfg.features)  # type: ignore[attr-defined]
         views = [_view(scene, i, cfg, sift) for i in idx]
         pairs = _pairs(np.stack([v.center for v in views]), cfg.neighbours)
         out.pairs = len(pairs)

@@ -175,7 +175,8 @@ def write_scene_into(
     if images not in ("copy", "link", "none"):
         raise ValueError(f"images must be 'copy', 'link' or 'none', got {images!r}")
     check_names([f.name for f in scene.frames], scene.source or "scene", what="frame name", subfolders=True)
-    split, sources, dense = None, [], dense or DenseInfo()
+    split, dense = None, dense or DenseInfo()
+    sources: list[str] = []
     if any(f.synthetic for f in scene.frames):
         scene, split, sources = _dense.layout(scene, dense)
     new_frames = []

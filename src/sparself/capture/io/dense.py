@@ -254,11 +254,11 @@ def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None
         conf = np.ones((h, w), np.float32) if conf is None else conf
         mask = Image.fromarray(mask_values(conf), mode="L")
         if mask.size != (w, h):
-            mask = mask.resize((w, h), Image.NEAREST)
+            mask = mask.resize((w, h), Image.Resampling.NEAREST)
         for k, sub in [(1, MASKS)] + [(k, f"{MASKS}_{k}") for k in factors]:
             dst = Path(folder) / sub / mask_name(f.name)
             dst.parent.mkdir(parents=True, exist_ok=True)
-            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.NEAREST)).save(dst)
+            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.Resampling.NEAREST)).save(dst)
 
 
 # ---- reading masks back -----------------------------------------------------------------------------

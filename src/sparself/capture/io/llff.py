@@ -46,6 +46,10 @@ def _load_array(path: Path) -> np.ndarray:
         raise InputError(f"{path}: expected an (N, 17) array of LLFF poses and bounds, got shape {arr.shape}")
     if not np.issubdtype(arr.dtype, np.number):
         raise InputError(f"{path}: expected numbers, got dtype {arr.dtype}")
+    if np.iscomplexobj(arr):
+        if np.any(arr.imag != 0):
+            raise InputError(f"{path}: expected real numbers, got complex values (dtype {arr.dtype})")
+        arr = arr.real
     arr = arr.astype(np.float64)
     check_finite(arr, str(path))
     return arr
@@ -107,11 +111,14 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     check_names([p.name for p in files], image_dir)
     if len(files) != len(arr):
         raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
-    frames, cams, frame_bounds, scaled = [], [], {}, {}
+    frames, cams, frame_bounds = [], [], {}
+    scaled: dict[tuple, list[str]] = {}  # image size -> the views scaled to it
     for i, (row, img) in enumerate(zip(arr, files)):
         m = row[:15].reshape(3, 5)
         R = m[:, :3]
-        if abs(np.linalg.det(R) - 1.0) > 1e-3 or np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+        with np.errstate(all="ignore"):  # huge or tiny entries: the check below fails them (NaN included)
+            rotation = abs(np.linalg.det(R) - 1.0) <= 1e-3 and np.abs(R.T @ R - np.eye(3)).max() <= 1e-3
+        if not rotation:
             raise InputError(
                 f"{npy}: row {i} ({img.name}): rotation columns are not orthonormal "
                 "(det must be +1 in [down, right, back] order)"
@@ -124,9 +131,10 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
                 f"got H={h}, W={w}, focal={focal}, near={near}, far={far}"
             )
         iw, ih = image_size_of(img)
-        sx, sy = iw / w, ih / h
+        with np.errstate(over="ignore"):  # a tiny H or W gives inf, which the aspect check rejects
+            sx, sy = iw / w, ih / h
         if (iw, ih) != (int(round(w)), int(round(h))):
-            if abs(sx - sy) > 0.02:
+            if not abs(sx - sy) <= 0.02:
                 raise InputError(f"{img}: image is {iw}x{ih} but {npy.name} says {w:g}x{h:g} (aspect differs)")
             scaled.setdefault((iw, ih, w, h, sx), []).append(img.name)
         cams.append(Camera("SIMPLE_PINHOLE", iw, ih, (focal * sx, iw / 2.0, ih / 2.0)))

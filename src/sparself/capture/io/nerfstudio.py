@@ -48,7 +48,7 @@ def _read_camera(d: dict, img: Path | None, where: str) -> Camera:
     else:
         raise InputError(f"{where}: no image size (w, h) and no image to read it from")
     if "fl_x" in d or "fl_y" in d:
-        fx = float(d.get("fl_x", d.get("fl_y")))
+        fx = float(d["fl_x"] if "fl_x" in d else d["fl_y"])
         fy = float(d.get("fl_y", fx))
     elif "camera_angle_x" in d:
         fx = 0.5 * w / math.tan(0.5 * float(d["camera_angle_x"]))
@@ -168,7 +168,14 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
 
 
 def _intrinsics(cam: Camera) -> dict:
-    d = {"fl_x": cam.fx, "fl_y": cam.fy, "cx": cam.cx, "cy": cam.cy, "w": cam.width, "h": cam.height}
+    d: dict[str, float | str] = {
+        "fl_x": cam.fx,
+        "fl_y": cam.fy,
+        "cx": cam.cx,
+        "cy": cam.cy,
+        "w": cam.width,
+        "h": cam.height,
+    }
     p = cam.params
     if cam.model in ("SIMPLE_PINHOLE", "PINHOLE"):
         d["camera_model"] = "OPENCV"
