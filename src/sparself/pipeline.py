@@ -37,16 +37,15 @@ class DensifyConfig:
     out_size: int | None = None
     overwrite: bool = False
     keep_run: bool = True
-    downscaled: bool = option(True, "skip the images_2/4/8 copies beside images/ (large scenes)")
+    downscaled: bool = option(True, "write images_2/4/8 copies beside images/ (worth turning off for large scenes)")
     triangulate: bool = option(
         True,
-        "write a capture without sparse points without them (by default they are "
-        "triangulated from its real photos at their known poses)",
+        "triangulate sparse points for a capture that has none, from its real photos at their known poses",
     )
     test_split: bool = option(
         True,
-        "use every photo for training and synthesis and write no test split (by default the photos that "
-        "position-based loaders test, every 8th of all images, feed neither and form the test split)",
+        "write a test split: the photos position-based loaders test (every 8th of all images) feed neither "
+        "training nor synthesis (off: every photo feeds both and no test split is written)",
     )
 
 
@@ -96,12 +95,17 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
         syn = synthesize_with_confidence(run, scene.without(tcfg.holdout), targets)
         # points only for the written scene: training and synthesis are the same with or without them
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        dense = densify_scene(written, targets, syn.images, syn.confidence, syn.made_from)
+        dense = densify_scene(written, targets, syn.images, syn.confidence)
         sio.write_scene_into(
             dense,
             tmp / "scene",
             dense=sio.DenseInfo(
-                "../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled, cfg.test_split
+                "../run" if cfg.keep_run else None,
+                "../plan.json",
+                holdout,
+                cfg.downscaled,
+                cfg.test_split,
+                syn.sources_by_name(targets),
             ),
         )
         # the plan and a camera plot beside the scene, so users see where the new views are

@@ -393,7 +393,7 @@ def _report(
         repair=repair,
         camera=cam_notes,
     )
-    scene.meta.update(format="sfm", unregistered=unregistered, sfm_report=report)
+    scene.source_format, scene.unregistered = "sfm", tuple(unregistered)
     log.log(
         logging.WARNING if unregistered or check.suspects or check.breaks else logging.INFO,
         "sfm: %s (%s; %.1f s)",
@@ -570,7 +570,6 @@ def poses_to_folder(
     # the photos copied (not linked), and SfM's database beside the output while it runs
     check_free_space(out, (files_size(list_images(image_folder)) if images == "copy" else 0) + 64 * MB)
     scene, report = recover_poses(image_folder, cfg, beside=Path(out))
-    scene.meta.pop("sfm_report", None)
     with atomic_dir(Path(out), overwrite, inputs) as tmp:
         write_scene_into(scene, tmp, images=images)
         (tmp / "sfm_report.json").write_text(

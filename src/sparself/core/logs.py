@@ -49,7 +49,7 @@ class Repeats(logging.Filter):
         past five '02.png, ..., 06.png and 2 more: ...' (the count is of the names not shown)."""
         out = []
         for rec, names in self.more.values():
-            if names:
+            if names and isinstance(rec.args, tuple):  # always: only records with tuple args are counted
                 who = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
                 out.append(logging.makeLogRecord({**vars(rec), "msg": rec.msg % ((who,) + rec.args[1:]), "args": None}))
         return out

@@ -13,6 +13,7 @@ from sparself.core import metrics
 from sparself.core.errors import ConfigError
 from sparself.evaluation.config import VALIDATION_EVERY
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, with_images
+from sparself.recon import Renderer
 
 
 def weighted_scene(
@@ -61,7 +62,7 @@ def validation_views(inputs: Scene, planned: list[Frame], synth: SynthFn) -> Val
 
 
 def choose_weight(
-    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], object]
+    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
 ) -> dict:
     """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
     planned ``views``) renders those held-back *input* views best (mean PSNR; the first on ties). Reads the

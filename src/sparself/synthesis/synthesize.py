@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from sparself.capture import io as sio
-from sparself.capture.io.dense import MADE_FROM, MadeFrom
+from sparself.capture.io.dense import MadeFrom
 from sparself.capture.scene import Frame, Scene, one_size
 from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
@@ -51,6 +51,10 @@ class Synthesized:
     images: np.ndarray
     confidence: np.ndarray
     made_from: list[MadeFrom] = field(default_factory=list)  # per view: the photos that fed it
+
+    def sources_by_name(self, targets: Sequence[Frame]) -> dict[str, MadeFrom]:
+        """The photos that fed each view, by the name of its target (what sparself.json records)."""
+        return {t.name: m for t, m in zip(targets, self.made_from)}
 
 
 def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
@@ -104,15 +108,10 @@ def synthesizer(run_or_model):
 
 
 def densify_scene(
-    scene: Scene,
-    targets: list[Frame],
-    images: np.ndarray,
-    confidence: np.ndarray | None = None,
-    made_from: Sequence[MadeFrom] = (),
+    scene: Scene, targets: list[Frame], images: np.ndarray, confidence: np.ndarray | None = None
 ) -> Scene:
     """The scene with the synthesized frames added (``image`` set, ``synthetic=True``, and ``confidence``
-    (T, H, W) when given: written as ``masks/``), ordered by index; ``made_from`` (per target: the photos
-    that fed it) goes to ``meta`` and from there to ``sparself.json``."""
+    (T, H, W) when given: written as ``masks/``), ordered by index."""
     if len(targets) != len(images):
         raise ValueError(f"{len(targets)} targets but {len(images)} images")
     confs = [None] * len(targets) if confidence is None else list(confidence)
@@ -121,10 +120,7 @@ def densify_scene(
         for t, img, c in zip(targets, images, confs)
     ]
     frames = sorted(list(scene.frames) + new, key=lambda f: f.index)
-    meta = dict(scene.meta, synthesized=len(new))
-    if made_from:
-        meta[MADE_FROM] = {t.name: m for t, m in zip(targets, made_from)}
-    return replace(scene, frames=frames, meta=meta)
+    return replace(scene, frames=frames)
 
 
 def _check_order(run_path: Path, plan: Path) -> None:
@@ -172,7 +168,6 @@ def synthesize_plan(
         scene = reindexed(scene, order_frames(scene, order))
     syn = synthesize_with_confidence(run, scene, targets)
     written = ensure_points(scene) if triangulate else scene
-    dense = densify_scene(written, targets, syn.images, syn.confidence, syn.made_from)
-    return sio.write_scene(
-        dense, Path(out), overwrite=overwrite, dense=sio.DenseInfo(str(run_path), str(plan), downscale=downscaled)
-    )
+    dense = densify_scene(written, targets, syn.images, syn.confidence)
+    info = sio.DenseInfo(str(run_path), str(plan), downscale=downscaled, made_from=syn.sources_by_name(targets))
+    return sio.write_scene(dense, Path(out), overwrite=overwrite, dense=info)

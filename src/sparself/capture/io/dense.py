@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import logging
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -38,10 +38,18 @@ SPARSELF_JSON = "sparself.json"
 FORMAT, VERSION = "sparself-scene", 1
 MASKS = "masks"  # nerfstudio's per-frame mask folder (mask_path); masks_<f> beside images_<f>
 MASK_FLOOR = 0.2  # confidence below which a mask pixel is 0, which nerfstudio ignores (it reads any other as valid)
-MADE_FROM = "made_from"  # Scene.meta: synthesized name -> MadeFrom (the photos that fed it)
 LIST_FILES = {"train": "train_list.txt", "val": "val_list.txt", "test": "test_list.txt"}  # nerfstudio colmap
 _JPEG = (".jpg", ".jpeg")
 _RANKED = re.compile(r"^\d{4,}_")
+
+
+@dataclass(frozen=True)
+class MadeFrom:
+    """The photos a synthesized view was made from: those warped into it, and the sequence the network's
+    LSTM read before it (every source photo: each one informs every view)."""
+
+    warped: tuple[str, ...]
+    sequence: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -52,6 +60,7 @@ class DenseInfo:
     position-based loaders test (:func:`positional_test`).
     downscale: write ``images_2/4/8`` copies (False for large scenes).
     test_split: False = every photo fed training and synthesis: no val/test split is written.
+    made_from: the photos that fed each synthesized view, by its name (written to sparself.json).
     """
 
     run: str | None = None
@@ -59,15 +68,7 @@ class DenseInfo:
     holdout: tuple[str, ...] = ()
     downscale: bool = True
     test_split: bool = True
-
-
-@dataclass(frozen=True)
-class MadeFrom:
-    """The photos a synthesized view was made from: those warped into it, and the sequence the network's
-    LSTM read before it (every source photo: each one informs every view)."""
-
-    warped: tuple[str, ...]
-    sequence: tuple[str, ...]
+    made_from: dict[str, MadeFrom] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,7 @@ def synthetic_ext(real_names: Sequence[str]) -> str:
 
 def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     """The dense scene as written: frames in :func:`safe_order`, renamed with rank prefixes; its split;
-    and each written frame's original name. Observations in ``meta`` follow the renaming."""
+    and each written frame's original name. Observations follow the renaming."""
     frames = sorted(scene.frames, key=lambda f: f.index)
     flags = [f.synthetic for f in frames]
     order = safe_order(flags)
@@ -191,11 +192,8 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     train = tuple(n for f, n in zip(frames, names) if f.name not in held)
     split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
     renamed = [replace(f, name=n) for f, n in zip(frames, names)]
-    meta = dict(scene.meta)
-    obs = meta.get("observations")
-    if obs:
-        meta["observations"] = {n: obs[f.name] for f, n in zip(frames, names) if f.name in obs}
-    return replace(scene, frames=renamed, meta=meta), split, [f.name for f in frames]
+    obs = {n: scene.observations[f.name] for f, n in zip(frames, names) if f.name in scene.observations}
+    return replace(scene, frames=renamed, observations=obs), split, [f.name for f in frames]
 
 
 def write_split_files(folder: Path, split: Split) -> None:
@@ -220,14 +218,14 @@ def write_sparself_json(folder: Path, scene: Scene, split: Split, sources: Seque
         "test_every": EVERY,
         "position_based_test_sets_are_real": split.positional_safe,
         "split": {"rule": split.rule, "train": list(split.train), "val": list(split.val), "test": list(split.test)},
-        "frames": [_frame_doc(f, s, scene.meta.get(MADE_FROM) or {}) for f, s in zip(scene.frames, sources)],
+        "frames": [_frame_doc(f, s, info.made_from) for f, s in zip(scene.frames, sources)],
     }
     out = Path(folder) / SPARSELF_JSON
     out.write_text(json.dumps(doc, indent=1) + "\n")
     return out
 
 
-def _frame_doc(frame, source_name: str, made_from: dict) -> dict:
+def _frame_doc(frame, source_name: str, made_from: dict[str, MadeFrom]) -> dict:
     """A frame's entry in sparself.json; a synthesized one names the photos it was made from."""
     doc = {
         "name": frame.name,
@@ -303,11 +301,11 @@ def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None
         conf = np.ones((h, w), np.float32) if conf is None else conf
         mask = Image.fromarray(mask_values(conf), mode="L")
         if mask.size != (w, h):
-            mask = mask.resize((w, h), Image.NEAREST)
+            mask = mask.resize((w, h), Image.Resampling.NEAREST)
         for k, sub in [(1, MASKS)] + [(k, f"{MASKS}_{k}") for k in factors]:
             dst = Path(folder) / sub / mask_name(f.name)
             dst.parent.mkdir(parents=True, exist_ok=True)
-            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.NEAREST)).save(dst)
+            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.Resampling.NEAREST)).save(dst)
 
 
 # ---- reading masks back -----------------------------------------------------------------------------
