@@ -636,10 +636,11 @@ def test_existing_non_empty_output_is_refused(tmp_path, capsys, cmd):
 
 def test_overwrite_replaces_an_existing_output(tmp_path, capsys):
     scene = write_posed(tmp_path / "scene", make_scene(6), "llff")
-    (tmp_path / "plan.json").write_text("old")
+    assert run(capsys, "plan", scene, "--out", tmp_path / "plan.json", "--n-mid", "1", "-q")[0] == 0  # an old plan
     code, _, err = run(capsys, "plan", scene, "--out", tmp_path / "plan.json", "--overwrite", "-q")
     assert code == 0, err
     assert json.loads((tmp_path / "plan.json").read_text())["format"] == "sparself-plan"
+    assert len(json.loads((tmp_path / "plan.json").read_text())["frames"]) > 3  # the new plan, not the old
     assert listing(tmp_path) == ["plan.json", "scene"]
 
 
