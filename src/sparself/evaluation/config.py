@@ -28,7 +28,11 @@ class EvalConfig:
     (its seed, size and epochs are set by the evaluation)."""
 
     size: int = option(128, "longer image side in pixels for every step (images are resized once, on load)")
-    inputs: int = option(25, "N, the number of sparse input views taken from a dense capture")
+    inputs: tuple[int, ...] = option(
+        (25,),
+        "N, the number of sparse input views taken from a dense capture; several, comma-separated (9,12,25): one "
+        "run, the same held-out frames and extrapolation margin for every N, results per N",
+    )
     extrapolation_margin: int | None = option(
         None,
         "capture frames kept beyond the first and last input of a dense capture (never inputs): their real "
@@ -83,11 +87,16 @@ class EvalConfig:
     progress: bool = option(True, "progress bars", cli=False)
     train: TrainConfig = field(default_factory=TrainConfig)
 
+    def __post_init__(self) -> None:
+        # one N (an int, as before several were allowed) or several, kept in ascending order
+        n = (self.inputs,) if isinstance(self.inputs, int) else tuple(self.inputs)
+        self.inputs = tuple(sorted(set(n)))
+
     def validate(self) -> None:
         if self.size < 8:
             raise ConfigError(f"size must be at least 8 pixels, got {self.size}")
-        if self.inputs < 3:
-            raise ConfigError(f"inputs must be at least 3, got {self.inputs}")
+        if not self.inputs or min(self.inputs) < 3:
+            raise ConfigError(f"inputs must be at least 3, got {','.join(map(str, self.inputs)) or 'none'}")
         if self.holdout_every < 2 or self.sparse_holdout_every < 2:
             raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
         if self.seeds < 1:
