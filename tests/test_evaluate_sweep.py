@@ -127,3 +127,11 @@ def test_example_grid_wraps_into_a_row_per_reconstructor():
     rows = grid_rows(labels, ["mpi", "3dgs"], columns=6)
     assert [(t, len(ls)) for t, ls in rows] == [("view synthesis", 3), ("mpi", 2), ("3dgs", 6), ("3dgs", 2)]
     assert np.all([ls == sorted(ls, key=labels.index) for _, ls in rows])
+
+
+def test_batch_evaluate_refuses_a_sweep_rather_than_keep_one_n():
+    from sparself.batch_units import evaluate_configs
+
+    with pytest.raises(ConfigError, match="one N at a time"):
+        evaluate_configs(EvalConfig(), {"inputs": [9, 25]})
+    assert [c.inputs for _, c in evaluate_configs(EvalConfig(seeds=2), {"inputs": 9})] == [(9,), (9,)]
