@@ -246,3 +246,13 @@ def test_gpu_check_says_what_it_needs_and_exits_0_without_cuda():
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu_splat_check.py"
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.startswith("needs CUDA + gsplat"), out.stdout + out.stderr
+
+
+def test_evaluation_sets_the_cpu_3dgs_steps_per_view():
+    from sparself.evaluation.config import EvalConfig
+    from sparself.evaluation.instruments import reconstructor
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2)).resized(32)
+    short = reconstructor("3dgs", EvalConfig(splat_steps_per_view=4, progress=False))(sc)
+    assert len(short.history) == 4 * 3  # a short run: 4 steps for each of the 3 views
+    assert len(reconstructor("splat", EvalConfig(splat_steps_per_view=2, progress=False))(sc).history) == 6

@@ -60,6 +60,11 @@ class EvalConfig:
     )
     epochs: int | None = option(None, "network training epochs (auto: the network's)")
     nerf_steps: int = option(1000, "NeRF optimisation steps per fit")
+    splat_steps_per_view: int | None = option(
+        None,
+        "CPU 3DGS optimisation steps per training view (a short run); auto: the reconstructor's own "
+        "(1500 steps, at least 60 per view)",
+    )
     recon_seed: int = option(0, "seed of the reconstructors")
     max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; auto: all)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
@@ -101,6 +106,8 @@ class EvalConfig:
             raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
         if self.seeds < 1:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+        if self.splat_steps_per_view is not None and self.splat_steps_per_view < 1:
+            raise ConfigError(f"splat_steps_per_view must be at least 1, got {self.splat_steps_per_view}")
         if self.first_seed < 0:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
