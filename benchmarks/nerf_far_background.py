@@ -4,7 +4,8 @@
     python benchmarks/nerf_far_background.py --steps 1000 --size 64
 
 A synthetic forward-facing capture with exact images: 17 cameras on a gently curved line looking down +z
-at a textured card (z = 2, 1 x 0.7) before a textured background at z = 100; sparse points on both, and
+at two textured cards (z = 2 and, partly hidden behind it, z = 3) before a textured background at z = 100;
+sparse points on all three, and
 the capture's bounds reaching 121 (as a phone video's). NeRF is fitted on 5 of the cameras (N) and on
 those + 4 real views between them (the oracle), and scored on 4 held-out cameras. Prints one row each, with
 the sampling range and the radius of the unit ball the NeRF chose.
@@ -40,13 +41,19 @@ def texture(x: np.ndarray, y: np.ndarray, freq: float) -> np.ndarray:
     )
 
 
+# (depth, x centre, half width, half height, texture frequency): a card, a second one partly behind it
+CARDS = ((2.0, -0.15, 0.35, 0.3, 9.0), (3.0, 0.45, 0.45, 0.45, 13.0))
+
+
 def render(pose: Pose, cam: Camera) -> np.ndarray:
-    """The card where a ray meets it, else the background: exact, by ray casting."""
+    """The nearest card a ray meets, else the background: exact, by ray casting (occlusion included)."""
     o, d = pixel_rays(pose, cam)
-    p = o + ((2.0 - o[:, 2]) / d[:, 2])[:, None] * d
     q = o + ((BACKGROUND - o[:, 2]) / d[:, 2])[:, None] * d
-    card = (np.abs(p[:, 0]) < 0.5) & (np.abs(p[:, 1]) < 0.35)
-    img = np.where(card[:, None], texture(p[:, 0], p[:, 1], 9.0), texture(q[:, 0], q[:, 1], 0.08))
+    img = texture(q[:, 0], q[:, 1], 0.08)
+    for z, cx, hw, hh, freq in CARDS[::-1]:  # far to near: a nearer card paints over
+        p = o + ((z - o[:, 2]) / d[:, 2])[:, None] * d
+        hit = (np.abs(p[:, 0] - cx) < hw) & (np.abs(p[:, 1]) < hh)
+        img = np.where(hit[:, None], texture(p[:, 0], p[:, 1], freq), img)
     return img.reshape(cam.height, cam.width, 3).astype(np.float32)
 
 
@@ -57,9 +64,12 @@ def capture(size: int) -> tuple[Camera, list[Frame], np.ndarray]:
         pose = Pose.from_center(np.array([1.0, 0, 0, 0]), np.array([x, 0.05 * np.sin(3 * x), 0.0]))
         frames.append(Frame(f"f{k}", pose, 1, float(k), None, render(pose, cam)))
     rng = np.random.default_rng(0)
-    card = np.c_[rng.uniform(-0.5, 0.5, 300), rng.uniform(-0.35, 0.35, 300), np.full(300, 2.0)]
+    cards = [
+        np.c_[rng.uniform(cx - hw, cx + hw, 150), rng.uniform(-hh, hh, 150), np.full(150, z)]
+        for z, cx, hw, hh, _ in CARDS
+    ]
     far = np.c_[rng.uniform(-40, 40, (200, 2)), np.full(200, BACKGROUND)]
-    return cam, frames, np.concatenate([card, far])
+    return cam, frames, np.concatenate(cards + [far])
 
 
 def main() -> None:

@@ -135,3 +135,13 @@ def test_batch_evaluate_refuses_a_sweep_rather_than_keep_one_n():
     with pytest.raises(ConfigError, match="one N at a time"):
         evaluate_configs(EvalConfig(), {"inputs": [9, 25]})
     assert [c.inputs for _, c in evaluate_configs(EvalConfig(seeds=2), {"inputs": 9})] == [(9,), (9,)]
+
+
+def test_the_oracle_share_says_how_many_captures_it_rests_on():
+    no_oracle = _entry(20.0, 22.0, 0.1, 0.0)
+    del no_oracle["oracle"]
+    scenes = [{"name": "a", "densification": {"mpi": _entry(20.0, 21.0, 0.1, 22.0)}}]
+    scenes.append({"name": "ring", "densification": {"mpi": no_oracle}})
+    v = verdict(scenes, "mpi", None)
+    assert v.change_db == pytest.approx(1.5) and v.share == pytest.approx(0.5) and (v.captures, v.shared) == (2, 1)
+    assert "50 % of the oracle's gain (+2.00 dB) on the 1 capture(s) with one; 2 capture(s)" in v.sentence(False)

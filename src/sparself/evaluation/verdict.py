@@ -1,8 +1,8 @@
 """What the report opens with: a verdict per reconstructor (and per N in a sweep) on whether densifying with
 sparself's views helps it, and the PSNR-against-N series of a sweep (``evaluate --inputs 9,12,25``).
 
-Read from ``results.json`` scenes (dicts), old single-N files included: a scene without ``inputs_n`` counts
-its inputs, one without ``capture`` is its own capture.
+Read from ``results.json`` scenes (dicts), old single-N files included: scenes without ``inputs_n`` are
+judged together, one without ``capture`` is its own capture.
 """
 
 from __future__ import annotations
@@ -20,8 +20,9 @@ SWEEP_ROWS = (("base", "N"), (NETWORK, "N + sparself"), ("flow", "N + flow"), ("
 
 
 def n_inputs(s: dict) -> int | None:
-    """A scene's N: recorded, or the number of its inputs (results from before the sweep)."""
-    return s.get("inputs_n") or len(s.get("protocol", {}).get("inputs", [])) or None
+    """A run's N as the evaluation asked for it (None in results from before the sweep: one N for all; a
+    sparse capture's own input count differs from N and is not grouped by)."""
+    return s.get("inputs_n")
 
 
 def capture(s: dict) -> str:
@@ -56,6 +57,7 @@ class Verdict:
     oracle_gain_db: float | None = None
     captures: int = 0
     failed: list[str] = field(default_factory=list)
+    shared: int = 0  # captures whose oracle share is measurable (an oracle that gains >= 0.1 dB)
 
     def sentence(self, sweep: bool) -> str:
         who = f"{self.recon} at N = {self.n}" if sweep and self.n else self.recon
@@ -65,11 +67,10 @@ class Verdict:
         if self.change_db is None:
             return f"{who}: {self.word}: no capture to judge by{failed}."
         spread = f" ± {self.spread_db:.2f} dB over seeds" if self.spread_db is not None else " (one seed)"
-        share = (
-            f"; {100 * self.share:.0f} % of the oracle's gain ({self.oracle_gain_db:+.2f} dB)"
-            if self.share is not None
-            else ""
-        )
+        share = ""
+        if self.share is not None:
+            on = f" on the {self.shared} capture(s) with one" if self.shared < self.captures else ""
+            share = f"; {100 * self.share:.0f} % of the oracle's gain ({self.oracle_gain_db:+.2f} dB){on}"
         return (
             f"{who}: {self.word}: N + sparself {self.change_db:+.2f} dB PSNR over N{spread}{share}; "
             f"{self.captures} capture(s){failed}."
@@ -96,11 +97,13 @@ def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
         changes.append(net - base)
         spreads.append(sd)
         oracle = mean_of(d.get("oracle"), "psnr")[0]
-        shares.append(share_of_oracle_gain(base, net, oracle))
-        gains.append(None if oracle is None else oracle - base)
+        share = share_of_oracle_gain(base, net, oracle)
+        shares.append(share)
+        gains.append(None if share is None else oracle - base)
     change, spread = _mean(changes), _mean(spreads)
     word = decide(change, spread)
-    return Verdict(recon, n, word, change, spread, _mean(shares), _mean(gains), len(changes), failed)
+    shared = sum(x is not None for x in shares)
+    return Verdict(recon, n, word, change, spread, _mean(shares), _mean(gains), len(changes), failed, shared)
 
 
 def verdicts(ok: list[dict], recons: list[str]) -> list[Verdict]:
