@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 import matplotlib
 import numpy as np
@@ -73,7 +74,7 @@ def grid_rows(labels: list[str], recons: list[str], columns: int = GRID_COLUMNS)
     return [(k, groups[k][i : i + columns]) for k in order if k in groups for i in range(0, len(groups[k]), columns)]
 
 
-def image_grid(out_dir: Path, path: Path, images: dict[str, str], recons: list[str] = ()) -> bool:
+def image_grid(out_dir: Path, path: Path, images: dict[str, str], recons: Sequence[str] = ()) -> bool:
     """Rows of (ground truth, predictions), each prediction over its error map (|pred - truth| averaged over
     channels): the view synthesis methods, then one row per reconstructor (:func:`grid_rows`)."""
     if "ground_truth" not in images:

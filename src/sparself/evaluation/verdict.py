@@ -99,7 +99,7 @@ def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
         oracle = mean_of(d.get("oracle"), "psnr")[0]
         share = share_of_oracle_gain(base, net, oracle)
         shares.append(share)
-        gains.append(None if share is None else oracle - base)
+        gains.append(None if share is None or oracle is None else oracle - base)
     change, spread = _mean(changes), _mean(spreads)
     word = decide(change, spread)
     shared = sum(x is not None for x in shares)
@@ -129,7 +129,7 @@ def sweep_series(ok: list[dict], recons: list[str]) -> dict[str, dict[str, dict[
     more than one N (rows and points that did not run are left out)."""
     out: dict = {}
     for cap in dict.fromkeys(capture(s) for s in ok):
-        runs = sorted((s for s in ok if capture(s) == cap and n_inputs(s)), key=n_inputs)
+        runs = sorted((s for s in ok if capture(s) == cap and n_inputs(s)), key=lambda s: n_inputs(s) or 0)
         if len(runs) < 2:
             continue
         for r in recons:
