@@ -69,6 +69,7 @@ def test_a_sparse_capture_runs_once_whatever_n(tmp_path):
     small = cap.subset(list(range(9)))  # 9 frames: too few for 5 inputs with real frames between them
     res = ev.run_evaluation([small], _tiny_cfg(inputs=(3, 5), seeds=1), None, **hooks)
     assert [(s["status"], s["inputs_n"]) for s in res["scenes"]] == [("ok", 5)] and calls == [0]
+    assert any(n.startswith("run once for N = 3, 5") for n in res["scenes"][0]["notes"])
     assert make_split(N_FRAMES, _tiny_cfg(inputs=(3, 5)), 3).kind == "dense"
 
 
