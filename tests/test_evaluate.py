@@ -166,7 +166,7 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
     assert np.isfinite(s["view_synthesis"]["blend"]["summary"]["psnr"]["mean"])
     # outputs: JSON with settings + versions, report with the tables and figures
     data = json.loads((out / "results.json").read_text())
-    assert data["settings"]["inputs"] == 5 and "torch" in data["settings"]["versions"]
+    assert data["settings"]["inputs"] == [5] and "torch" in data["settings"]["versions"]
     md = (out / "report.md").read_text()
     assert "Densification: N input views vs N + synthesized views" in md
     assert "| Scene | nearest N | nearest N+synth | nearest change | nerf N |" in md

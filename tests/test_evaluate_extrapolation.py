@@ -44,7 +44,7 @@ def test_margin_zero_is_the_split_without_extrapolation():
         cfg = EvalConfig(extrapolation_margin=0, **kw)
         held = holdout_indices(n, cfg.holdout_every)
         rest = [i for i in range(n) if i not in held]
-        inputs = evenly_spaced(rest, cfg.inputs)  # the inputs span the capture from first to last frame
+        inputs = evenly_spaced(rest, max(cfg.inputs))  # the inputs span the capture from first to last frame
         s = make_split(n, cfg)
         assert (s.kind, s.eval, s.inputs, s.margin) == ("dense", held, inputs, [])
         assert s.between == [i for i in rest if i not in inputs] and s.inputs[0] == 0 and s.inputs[-1] == n - 1

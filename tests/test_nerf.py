@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import torch
 
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.geometry import Pose
-from sparself.recon.nerf import NerfConfig, fit, fit_device, pixel_rays
+from sparself.recon.nerf import NerfConfig, fit, fit_device, pixel_rays, sampling_bounds, scene_normalization
 
 DEPTH = 4.0
 
@@ -111,3 +112,44 @@ def test_nerf_fits_on_the_device_it_is_given():
     r = fit(scene, steps=3, device="cpu", progress=False)
     assert r.field.background.device.type == "cpu"
     assert fit_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def _forward_facing_points(background: float, seed: int = 0) -> Scene:
+    """3 x 3 cameras at z = 0 looking down +z, sparse points on a near plane (z = 2, 1.2 wide) and on a far
+    background (z = ``background``, as wide as the view there), the capture's bounds reaching past both."""
+    rng = np.random.default_rng(seed)
+    near = np.c_[rng.uniform(-0.6, 0.6, (150, 2)), np.full(150, 2.0)]
+    far = np.c_[rng.uniform(-0.5, 0.5, (100, 2)) * background, np.full(100, background)]
+    scene, _ = _plane_scene(n_side=3, size=8)
+    return replace(scene, points=np.concatenate([near, far]), bounds=(1.0, 1.21 * background))
+
+
+def test_a_far_background_leaves_the_unit_ball_on_the_near_scene():
+    scene = _forward_facing_points(100.0)
+    c, r = scene_normalization(scene)
+    # the near plane fills the ball: its 1.2-unit width spans a good part of the grid (all the points: r > 40)
+    assert np.linalg.norm(c - [0.0, 0.0, 2.0]) < 0.3 and 0.4 < r < 1.0
+    # the background only moves the contracted shell: the ball is the same whether it lies at 100 or 1000
+    c2, r2 = scene_normalization(_forward_facing_points(1000.0))
+    np.testing.assert_allclose(c2, c, atol=1e-9)
+    assert r2 == pytest.approx(r)
+
+
+def test_samples_span_the_sparse_points_not_the_captures_bounds():
+    scene = _forward_facing_points(100.0)
+    near, far = sampling_bounds(scene)
+    # from the points: z from 2 (near plane, seen from the cameras at z = 0) to 100, widened by 10 %
+    assert near == pytest.approx(1.8, rel=0.02) and far == pytest.approx(110.0, rel=0.02)
+    r = fit(scene, steps=0, levels=(8,), hidden=8, progress=False)
+    assert (r.near, r.far) == pytest.approx((near, far))
+    # without points the capture's bounds stay the sampling range
+    assert sampling_bounds(replace(scene, points=None)) == (1.0, 121.0)
+
+
+def test_a_scene_without_far_background_keeps_every_point_in_the_ball():
+    rng = np.random.default_rng(1)
+    scene, _ = _plane_scene(n_side=3, size=8)
+    pts = np.c_[rng.uniform(-1, 1, (200, 2)), rng.uniform(2.5, 5.8, 200)]  # depths as llff_bird's
+    c, r = scene_normalization(replace(scene, points=pts))
+    np.testing.assert_allclose(c, np.median(pts, axis=0))
+    assert r == pytest.approx(np.percentile(np.linalg.norm(pts - c, axis=1), 90))

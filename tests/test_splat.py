@@ -83,7 +83,13 @@ def test_off_axis_anisotropic_rotated_gaussian_follows_ewa():
     mu = (f * x / z + 30.0, f * y / z + 25.0)
     np.testing.assert_allclose(p.means2d[0].numpy(), mu, atol=1e-12)
     u, v = _pixels(cam)
-    np.testing.assert_allclose(img[..., 0].numpy(), _closed_form(u, v, mu, cov, 0.6), atol=1e-12)
+    a = _closed_form(u, v, mu, cov, 0.6)
+    np.testing.assert_allclose(img[..., 0].numpy(), a, atol=1e-12)
+    # the pixels visited: the bounding box of the ellipse where alpha reaches 1/255, narrower in y than in x
+    half = np.sqrt(2 * np.log(0.6 * 255) * np.diag(cov))
+    np.testing.assert_allclose(p.radii[0].numpy(), half, rtol=1e-12)
+    assert half[1] < 0.5 * half[0]
+    assert np.all(np.abs(u[a > 0] - mu[0]) <= half[0]) and np.all(np.abs(v[a > 0] - mu[1]) <= half[1])
 
 
 def test_opacity_sets_the_peak_and_saturates_at_0999():
@@ -240,3 +246,13 @@ def test_gpu_check_says_what_it_needs_and_exits_0_without_cuda():
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu_splat_check.py"
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.startswith("needs CUDA + gsplat"), out.stdout + out.stderr
+
+
+def test_evaluation_sets_the_cpu_3dgs_steps_per_view():
+    from sparself.evaluation.config import EvalConfig
+    from sparself.evaluation.instruments import reconstructor
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2)).resized(32)
+    short = reconstructor("3dgs", EvalConfig(splat_steps_per_view=4, progress=False))(sc)
+    assert len(short.history) == 4 * 3  # a short run: 4 steps for each of the 3 views
+    assert len(reconstructor("splat", EvalConfig(splat_steps_per_view=2, progress=False))(sc).history) == 6

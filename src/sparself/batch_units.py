@@ -13,7 +13,7 @@ from pathlib import Path
 import torch
 
 from sparself.capture.io import read_scene
-from sparself.core.errors import InputError, OutputError, SparselfError
+from sparself.core.errors import ConfigError, InputError, OutputError, SparselfError
 from sparself.core.outputs import atomic_file
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.evaluate import evaluate
@@ -155,6 +155,11 @@ def evaluate_configs(base: EvalConfig, options: dict) -> list[tuple[int, EvalCon
     """One config per seed; the first seed's unit also runs the seed-independent parts (baselines, oracle)."""
     cfg = replace(base, **options, progress=False)
     cfg.validate()
+    if len(cfg.inputs) > 1:  # a unit's record holds one run per capture
+        raise ConfigError(
+            f"batch evaluate runs one N at a time, got inputs {','.join(map(str, cfg.inputs))}: run one batch per N, "
+            "or `sparself evaluate --inputs` for the sweep"
+        )
     first = cfg.first_seed
     out = []
     for seed in range(first, first + cfg.seeds):

@@ -28,7 +28,11 @@ class EvalConfig:
     (its seed, size and epochs are set by the evaluation)."""
 
     size: int = option(128, "longer image side in pixels for every step (images are resized once, on load)")
-    inputs: int = option(25, "N, the number of sparse input views taken from a dense capture")
+    inputs: tuple[int, ...] = option(
+        (25,),
+        "N, the number of sparse input views taken from a dense capture; several, comma-separated (9,12,25): one "
+        "run, the same held-out frames and extrapolation margin for every N, results per N",
+    )
     extrapolation_margin: int | None = option(
         None,
         "capture frames kept beyond the first and last input of a dense capture (never inputs): their real "
@@ -56,6 +60,11 @@ class EvalConfig:
     )
     epochs: int | None = option(None, "network training epochs (auto: the network's)")
     nerf_steps: int = option(1000, "NeRF optimisation steps per fit")
+    splat_steps_per_view: int | None = option(
+        None,
+        "CPU 3DGS optimisation steps per training view (a short run); auto: the reconstructor's own "
+        "(1500 steps, at least 60 per view)",
+    )
     recon_seed: int = option(0, "seed of the reconstructors")
     max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; auto: all)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
@@ -83,15 +92,22 @@ class EvalConfig:
     progress: bool = option(True, "progress bars", cli=False)
     train: TrainConfig = field(default_factory=TrainConfig)
 
+    def __post_init__(self) -> None:
+        # one N (an int, as before several were allowed) or several, kept in ascending order
+        n = (self.inputs,) if isinstance(self.inputs, int) else tuple(self.inputs)
+        self.inputs = tuple(sorted(set(n)))
+
     def validate(self) -> None:
         if self.size < 8:
             raise ConfigError(f"size must be at least 8 pixels, got {self.size}")
-        if self.inputs < 3:
-            raise ConfigError(f"inputs must be at least 3, got {self.inputs}")
+        if not self.inputs or min(self.inputs) < 3:
+            raise ConfigError(f"inputs must be at least 3, got {','.join(map(str, self.inputs)) or 'none'}")
         if self.holdout_every < 2 or self.sparse_holdout_every < 2:
             raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
         if self.seeds < 1:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+        if self.splat_steps_per_view is not None and self.splat_steps_per_view < 1:
+            raise ConfigError(f"splat_steps_per_view must be at least 1, got {self.splat_steps_per_view}")
         if self.first_seed < 0:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:

@@ -21,8 +21,9 @@ from sparself.core.errors import InputError
 from sparself.core.outputs import Input, atomic_dir, check_not_input, evaluation_inputs
 from sparself.evaluation.config import DIETNERF_NOTE, EvalConfig, eval_config
 from sparself.evaluation.instruments import versions
-from sparself.evaluation.protocol import evaluate_scene
+from sparself.evaluation.protocol import evaluate_scene, name_from_source, run_name, scene_name
 from sparself.evaluation.report import write_report
+from sparself.evaluation.split import make_split
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -89,23 +90,47 @@ def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Pat
     for item in tqdm(list(scenes), desc="scenes", disable=not cfg.progress):
         label = str(item) if not isinstance(item, Scene) else str(item.source or "scene")
         try:
-            if isinstance(item, Scene):
-                scene = item
-            else:
-                scene = read_scene(Path(item))
-            results["scenes"].append(evaluate_scene(scene, cfg, out_dir, **hooks))
+            scene = item if isinstance(item, Scene) else read_scene(Path(item))
         except Exception as e:
-            log.error("%s: evaluation failed: %s", label, e)
-            results["scenes"].append(
-                {
-                    "name": Path(label).name,
-                    "source": label,
-                    "status": "failed",
-                    "error": f"{type(e).__name__}: {e}",
-                    "traceback": traceback.format_exc(limit=5),
-                }
-            )
+            results["scenes"].append(_failed(label, e, cfg))
+            continue
+        ns = sweep(scene, cfg)
+        for n in ns:
+            try:
+                res = evaluate_scene(scene, cfg, out_dir, n_inputs=n, **hooks)
+                if len(ns) < len(cfg.inputs):
+                    res["notes"].append(
+                        f"run once for N = {', '.join(map(str, cfg.inputs))}: a capture too small for the dense "
+                        "protocol has every frame not held out as its inputs, whatever N"
+                    )
+                results["scenes"].append(res)
+            except Exception as e:
+                results["scenes"].append(_failed(label, e, cfg, n))
     return results
+
+
+def sweep(scene: Scene, cfg: EvalConfig) -> list[int]:
+    """The N values a capture is run with: every one of ``cfg.inputs``, or only the largest on a capture too
+    small for the dense protocol (its inputs are every frame not held out, whatever N)."""
+    if len(cfg.inputs) > 1 and make_split(len(scene), cfg).kind == "sparse":
+        log.info("%s: a sparse capture has the same inputs for every N: run once", scene_name(scene))
+        return [max(cfg.inputs)]
+    return list(cfg.inputs)
+
+
+def _failed(label: str, e: Exception, cfg: EvalConfig, n_inputs: int | None = None) -> dict:
+    """The record of a run that failed (the others go on)."""
+    log.error("%s: evaluation failed: %s", label, e)
+    capture = name_from_source(label)
+    return {
+        "name": capture if n_inputs is None else run_name(capture, cfg, n_inputs),
+        "capture": capture,
+        "inputs_n": n_inputs,
+        "source": label,
+        "status": "failed",
+        "error": f"{type(e).__name__}: {e}",
+        "traceback": traceback.format_exc(limit=5),
+    }
 
 
 def evaluate(

@@ -98,11 +98,18 @@ def baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
 def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], Renderer]:
     """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
     the evaluation's settings applied."""
+    from sparself.recon.gsplat import available
+
     fit = get_reconstructor(name)
+    base = dict(seed=cfg.recon_seed, progress=cfg.progress)
+    splat = dict(base)
+    if cfg.splat_steps_per_view is not None:
+        splat.update(steps=0, min_steps_per_view=cfg.splat_steps_per_view)
     kw = {
         "nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
-        "gsplat": dict(seed=cfg.recon_seed, progress=cfg.progress),
-        "3dgs": dict(seed=cfg.recon_seed, progress=cfg.progress),
+        "gsplat": base,
+        "3dgs": base if available()[0] else splat,  # the CPU path's setting: gsplat keeps its recipe
+        "splat": splat,
     }.get(name, {})
     return lambda sc: fit(sc, **kw)
 

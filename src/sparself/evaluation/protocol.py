@@ -283,18 +283,28 @@ def protocol(ev: SceneEval, plan_info: list[dict]) -> dict:
     }
 
 
-def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None) -> SceneEval:
-    """Split the capture, plan the novel poses and draw the cameras."""
-    name = scene_name(scene)
+def run_name(capture: str, cfg: EvalConfig, n_inputs: int) -> str:
+    """A run's name in the results: the capture's, with its N when the run sweeps several."""
+    return capture if len(cfg.inputs) == 1 else f"{capture} N={n_inputs}"
+
+
+def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None, n_inputs: int | None = None) -> SceneEval:
+    """Split the capture (``n_inputs`` inputs, None: the largest of ``cfg.inputs``), plan the novel poses and
+    draw the cameras."""
+    n_inputs = n_inputs or max(cfg.inputs)
+    capture = scene_name(scene)
+    name = run_name(capture, cfg, n_inputs)
     res: dict = {
         "name": name,
+        "capture": capture,
+        "inputs_n": n_inputs,
         "source": str(scene.source) if scene.source else None,
         "status": "running",
         "notes": [],
         "timings": {},
     }
     full = sorted_resized(scene, cfg)
-    split = make_split(len(full), cfg)
+    split = make_split(len(full), cfg, n_inputs)
     if len(split.eval) == 0:
         raise InputError(f"{name}: {len(full)} frames leave no interior frame to hold out")
     full = input_points(full, scene.cameras, split.inputs, cfg, res)
@@ -501,8 +511,10 @@ def evaluate_scene(
     reconstructors: dict[str, Callable[[Scene], Renderer]] | None = None,
     baselines: dict[str, SynthFn] | None = None,
     on_partial: Callable[[dict], None] | None = None,
+    n_inputs: int | None = None,
 ) -> dict:
-    """Run the protocol on one scene. Returns the scene's results (JSON-able).
+    """Run the protocol on one scene with ``n_inputs`` inputs (one of ``cfg.inputs``; None: the largest).
+    Returns the scene's results (JSON-able).
 
     network: ``make(inputs_scene, seed) -> synthesize`` (default: :func:`network_factory`); None when
     unavailable is recorded. ``synthesize(sources, targets)`` gets the inputs as sources, and for the
@@ -513,7 +525,7 @@ def evaluate_scene(
     (long runs can save what they have).
     """
     t_start = time.perf_counter()
-    ev = start_scene(scene, cfg, out_dir)
+    ev = start_scene(scene, cfg, out_dir, n_inputs)
     ev.on_partial = on_partial
     ev.res["view_synthesis"] = {}
     ev.res.update({sec: {} for sec in PLANNED_SECTIONS})

@@ -1,8 +1,10 @@
 """The evaluation report: ``report.md`` + ``report.html`` + PNG figures from :mod:`sparself.evaluate` results.
 
-Tables follow the paper's Tables 1-3 (per scene and average, N vs N + synthesized views, with the
-change), plus the baselines, the oracle and the share of the oracle's gain. An LPIPS cell shows
-"unavailable" whenever the LPIPS weights were not found: a number is never printed for it then.
+It opens with the verdict per reconstructor (:mod:`sparself.evaluation.verdict`) and, for a sweep over N,
+the PSNR-against-N plot; then tables that follow the paper's Tables 1-3 (per scene and average, N vs N +
+synthesized views, with the change), plus the baselines, the oracle and the share of the oracle's gain.
+Without LPIPS weights no LPIPS table is drawn (the "Not run" list says why, once): a number is never printed
+for it then.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.evaluation.document import UNAVAILABLE, Doc, avg, change, fmt, lpips_available
-from sparself.evaluation.figures import bar_chart, image_grid
+from sparself.evaluation.figures import bar_chart, image_grid, sweep_plot
 from sparself.evaluation.results import (
     EXTRAPOLATED,
     INTERPOLATED,
@@ -25,6 +27,15 @@ from sparself.evaluation.results import (
     share_of_oracle_gain,
 )
 from sparself.evaluation.results import METRICS as METRIC_NAMES
+from sparself.evaluation.verdict import (
+    CANNOT_TELL,
+    DOES_NOT_HELP,
+    HELPS,
+    MIN_CHANGE_DB,
+    is_sweep,
+    sweep_series,
+    verdicts,
+)
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +121,11 @@ class _Ctx:
     def settings(self) -> dict:
         return self.results.get("settings", {})
 
+    @property
+    def metrics(self) -> tuple[tuple[str, str], ...]:
+        """The tables' metrics: LPIPS only where it was measured (why not is said once, under "Not run")."""
+        return METRICS if self.lp else tuple(m for m in METRICS if m[0] != "lpips")
+
 
 def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
     """Write ``report.md``, ``report.html`` and figures (``figures/*.png``) into ``out_dir``."""
@@ -130,6 +146,7 @@ def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
     doc = Doc(None if c.lp else str(results.get("settings", {}).get("lpips_status") or UNAVAILABLE))
     doc.h(1, "sparself evaluation report")
     for section in (
+        _verdict_section,
         _protocol_section,
         _not_run_section,
         _densification_tables,
@@ -148,6 +165,31 @@ def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
     return md, page
 
 
+def _verdict_section(doc: Doc, c: _Ctx) -> None:
+    """Does densifying with sparself's views help each reconstructor (per N in a sweep), then the PSNR-vs-N
+    plot of a sweep beside it."""
+    doc.h(2, "Verdict")
+    found = verdicts(c.ok, c.recons)
+    if not found:
+        doc.p("No reconstructor ran: nothing to judge.")
+        return
+    doc.p(
+        f"Per reconstructor: does N + sparself beat N on the held-out photos? '{HELPS}' when the PSNR gain "
+        f"exceeds {MIN_CHANGE_DB} dB and the spread over seeds, '{DOES_NOT_HELP}' when even the gain plus "
+        f"that spread stays under {MIN_CHANGE_DB} dB, '{CANNOT_TELL}' between the two or where the instrument "
+        "failed (N + real photos, the oracle, not better than N). Details follow."
+    )
+    sweep = is_sweep(c.ok)
+    doc.ul([v.sentence(sweep) for v in found])
+    for cap, panels in sweep_series(c.ok, c.recons).items():
+        p = c.fig_dir / f"sweep_{safe_name(cap)}.png"
+        try:
+            sweep_plot(p, f"{cap}: PSNR on the held-out photos against N", panels)
+            doc.img(str(p.relative_to(c.out_dir)), f"{cap} PSNR against N")
+        except Exception as e:  # a broken figure must not lose the tables
+            log.warning("sweep plot for %s failed: %s", cap, e)
+
+
 def _protocol_section(doc: Doc, c: _Ctx) -> None:
     settings = c.settings
     doc.h(2, "Protocol")
@@ -162,7 +204,7 @@ def _protocol_section(doc: Doc, c: _Ctx) -> None:
             f"Dense captures: every {settings.get('holdout_every', 8)}th interior frame is held out (LLFF-style, "
             f"first and last frames excluded); an extrapolation margin of frames is kept beyond each end (auto: one "
             f"input spacing, at least {settings.get('holdout_every', 8) + 1} frames; never inputs) and "
-            f"N = {settings.get('inputs', 25)} evenly spaced frames of the rest "
+            f"N = {_inputs_text(settings.get('inputs', 25))} evenly spaced frames of the rest "
             f"between the margins are the sparse input. "
             "Planned midpoints are snapped to the real (non-held-out) photo nearest the planned pose in their gap, "
             "planned extrapolations to the nearest one in the margin beyond their end input: the ground truth for "
@@ -192,6 +234,14 @@ def _protocol_section(doc: Doc, c: _Ctx) -> None:
             f"{s['name']}: {s['protocol']['rule']}. Held out: {', '.join(s['protocol']['held_out'])}; "
             f"scored: {len(s['protocol']['scored'])}; inputs: {', '.join(s['protocol']['inputs'])}{pts}."
         )
+
+
+def _inputs_text(inputs) -> str:
+    """N as the settings record it: one number (results before the sweep) or a list of them."""
+    if isinstance(inputs, (list, tuple)):
+        more = " (one run, the same held-out frames and margins for every N)" if len(inputs) > 1 else ""
+        return ", ".join(str(n) for n in inputs) + more
+    return str(inputs)
 
 
 def _points_line(points: str) -> str:
@@ -227,7 +277,7 @@ def _densification_tables(doc: Doc, c: _Ctx) -> None:
     """The paper's Tables 1-3: per scene and on average, N vs N + synthesized views and the change."""
     lp = c.lp
     doc.h(2, "Densification: N input views vs N + synthesized views (the paper's Tables 1–3)")
-    for metric, mlabel in METRICS:
+    for metric, mlabel in c.metrics:
         header = ["Scene"]
         for r in c.recons:
             header += [f"{r} N", f"{r} N+synth", f"{r} change"]
@@ -302,7 +352,7 @@ def _recon_comparisons(doc: Doc, c: _Ctx) -> None:
             if NETWORK_WEIGHTED in order
             else []
         )
-        for metric, mlabel in METRICS:
+        for metric, mlabel in c.metrics:
             header = (
                 ["Scene"]
                 + [names.get(k, f"N + {k}") for k in order]
@@ -377,7 +427,7 @@ PLANNED_TABLES = (
 def _view_synthesis_tables(doc: Doc, c: _Ctx) -> None:
     doc.h(2, "View synthesis at held-out poses (sparself vs baselines)")
     methods, lp = _methods(c.ok), c.lp
-    for metric, mlabel in METRICS:
+    for metric, mlabel in c.metrics:
         rows: list[list[str]] = []
         cols: dict[str | None, list[list]] = {}  # group -> per method its values
         for s in c.ok:
@@ -394,7 +444,7 @@ def _view_synthesis_tables(doc: Doc, c: _Ctx) -> None:
     for sec, title in PLANNED_TABLES:
         if any(s.get(sec) for s in c.ok):
             doc.h(3, title)
-            for metric, mlabel in METRICS:
+            for metric, mlabel in c.metrics:
                 rows = [
                     [s["name"]] + [fmt(metric, *mean_of(s[sec].get(m), metric), lpips_ok=lp) for m in methods]
                     for s in c.ok
@@ -408,7 +458,7 @@ def _figures(doc: Doc, c: _Ctx) -> None:
     """Bar charts per metric: densification (N vs N + synth per reconstructor) and view synthesis."""
     doc.h(2, "Figures")
     groups, methods = [s["name"] for s in c.ok], _methods(c.ok)
-    for metric, mlabel in METRICS:
+    for metric, mlabel in c.metrics:
         if metric == "lpips" and not c.lp:
             continue
         series = {}
@@ -435,8 +485,11 @@ def _examples(doc: Doc, c: _Ctx) -> None:
         for frame, imgs in s.get("examples", {}).items():
             p = c.fig_dir / f"grid_{safe_name(s['name'])}_{safe_name(Path(frame).stem)}.png"
             try:
-                if image_grid(c.out_dir, p, imgs):
-                    doc.p(f"{s['name']}, held-out frame {frame}: ground truth, predictions and error maps")
+                if image_grid(c.out_dir, p, imgs, c.recons):
+                    doc.p(
+                        f"{s['name']}, held-out frame {frame}: ground truth, predictions and error maps (view "
+                        "synthesis, then one row per reconstructor)"
+                    )
                     doc.img(str(p.relative_to(c.out_dir)), f"{s['name']} {frame}")
             except Exception as e:  # a broken figure must not lose the tables
                 log.warning("image grid for %s failed: %s", frame, e)

@@ -65,22 +65,24 @@ class Split:
 
 
 def extrapolation_margin(n: int, cfg: EvalConfig) -> int:
-    """Frames kept beyond each end input: the setting, or auto: one input spacing ((n-1)/(N+1) frames),
-    at least holdout_every + 1 so that a held-out frame lies beyond each end."""
+    """Frames kept beyond each end input: the setting, or auto: one input spacing ((n-1)/(N+1) frames) of the
+    smallest N (the same margin for every N), at least holdout_every + 1 so that a held-out frame lies beyond
+    each end."""
     if cfg.extrapolation_margin is not None:
         return cfg.extrapolation_margin
-    return max(round((n - 1) / (cfg.inputs + 1)), cfg.holdout_every + 1)
+    return max(round((n - 1) / (min(cfg.inputs) + 1)), cfg.holdout_every + 1)
 
 
-def dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig) -> Split:
-    """N inputs evenly spaced over the frames inside the extrapolation margins (all of them if too few)."""
+def dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig, n_inputs: int) -> Split:
+    """``n_inputs`` inputs evenly spaced over the frames inside the extrapolation margins (all of them if too
+    few for the largest N: the margins, and so which frames are extrapolations, are the same for every N)."""
     m = extrapolation_margin(n, cfg)
     inside = [i for i in rest if m <= i <= n - 1 - m]
     dropped = ""
-    if m and len(inside) < 2 * cfg.inputs - 1:
+    if m and len(inside) < 2 * max(cfg.inputs) - 1:
         dropped = f" (too few frames for a {m}-frame extrapolation margin)"
         m, inside = 0, rest
-    inputs = evenly_spaced(inside, cfg.inputs)
+    inputs = evenly_spaced(inside, n_inputs)
     between = [i for i in rest if inputs[0] < i < inputs[-1] and i not in set(inputs)]
     margin = [i for i in rest if i < inputs[0] or i > inputs[-1]]
     beyond = [i for i in held if i < inputs[0] or i > inputs[-1]]
@@ -98,16 +100,18 @@ def dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig) -> Sp
     return Split("dense", held, inputs, between, rule, margin)
 
 
-def make_split(n: int, cfg: EvalConfig) -> Split:
-    """The protocol's split of a capture of n frames (see the module docstring)."""
+def make_split(n: int, cfg: EvalConfig, n_inputs: int | None = None) -> Split:
+    """The protocol's split of a capture of n frames with ``n_inputs`` inputs (one of ``cfg.inputs``; None:
+    the largest). Which frames are held out, and whether the capture is dense, do not depend on it."""
+    n_inputs = n_inputs or max(cfg.inputs)
     held = holdout_indices(n, cfg.holdout_every)
     rest = [i for i in range(n) if i not in set(held)]
-    if len(rest) >= 2 * cfg.inputs - 1:
-        return dense_split(n, held, rest, cfg)
+    if len(rest) >= 2 * max(cfg.inputs) - 1:
+        return dense_split(n, held, rest, cfg, n_inputs)
     held = list(range(1, n - 1, cfg.sparse_holdout_every))  # second, fourth, ...: the ends stay inputs
     inputs = [i for i in range(n) if i not in set(held)]
     rule = (
-        f"sparse: too few frames for {cfg.inputs} inputs with real frames between them; every "
+        f"sparse: too few frames for {max(cfg.inputs)} inputs with real frames between them; every "
         f"{cfg.sparse_holdout_every}nd interior frame from the second on held out ({len(held)}), "
         f"the other {len(inputs)} "
         "are the inputs; no oracle (the only real frames between inputs are the held-out ones)"

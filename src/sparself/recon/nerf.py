@@ -7,8 +7,9 @@ Design (chosen for 2 CPU cores, not for state-of-the-art quality):
 - the scene is normalised so the region the cameras look at is the unit ball, and space outside
   it is contracted into the ball of radius 2 (mip-NeRF 360's contraction), so forward-facing,
   object-centric and unbounded captures all fit one grid;
-- coarse-only sampling, log-uniform in depth between the scene's near and far bounds, no
-  occupancy grid; stratified jitter while training, bin centres when rendering (deterministic);
+- coarse-only sampling, log-uniform in depth between the near and far bounds of the sparse points (the
+  scene's bounds without them), no occupancy grid; before a far background the unit ball holds the near
+  points only (:func:`foreground_points`); stratified jitter while training, bin centres when rendering (deterministic);
 - a learned constant background colour for rays that leave the scene (black Middlebury
   backgrounds, white tables).
 
@@ -76,15 +77,60 @@ def pixel_rays(pose: Pose, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(o), np.ascontiguousarray(d_world)
 
 
+MIN_BOX_POINTS = 20  # sparse points needed to bound the scene by them
+WIDE_DEPTH_RATIO = 8.0  # a 95th/5th percentile ratio of point depths above this: a far background behind the scene
+
+
+def point_depths(scene: Scene) -> np.ndarray:
+    """Depths of the sparse points in front of each camera, over all cameras (empty without points)."""
+    if scene.points is None or len(scene.points) < MIN_BOX_POINTS:
+        return np.zeros(0)
+    p = np.asarray(scene.points, dtype=np.float64)
+    z = np.concatenate([(p @ f.pose.R.T + f.pose.tvec)[:, 2] for f in scene.frames])
+    return z[z > 0]
+
+
+def sampling_bounds(scene: Scene) -> tuple[float, float]:
+    """(near, far) of the samples along each ray: the 1st to the 99th percentile of the sparse points' depths
+    (widened by 10 %) when there are enough points, else :meth:`Scene.depth_bounds`. A capture's own bounds
+    can reach a far background that no input point shows (121 scene units on a phone video): samples spent
+    there leave too few on the scene, and beyond ``far`` a ray sees the learned background colour."""
+    z = point_depths(scene)
+    if len(z) < MIN_BOX_POINTS:
+        return scene.depth_bounds()
+    near, far = float(np.percentile(z, 1)) * 0.9, float(np.percentile(z, 99)) * 1.1
+    return max(near, 1e-3), max(far, near * 1.5)
+
+
+def foreground_points(scene: Scene) -> np.ndarray:
+    """The sparse points the unit ball must hold: all of them, or, when their depths span more than
+    WIDE_DEPTH_RATIO (a near scene before a far background), those nearer than the geometric mean of the
+    5th and 95th percentile depths in the cameras that see them; the rest lies in the contracted shell,
+    whose resolution falls with distance as a photo's does."""
+    p = np.asarray(scene.points, dtype=np.float64)
+    z = np.stack([(p @ f.pose.R.T + f.pose.tvec)[:, 2] for f in scene.frames])  # (frames, points)
+    z = np.where(z > 0, z, np.nan)
+    seen = ~np.all(np.isnan(z), axis=0)
+    if seen.sum() < MIN_BOX_POINTS:
+        return p
+    depth = np.nanmedian(z[:, seen], axis=0)
+    lo, hi = np.percentile(depth, [5, 95])
+    if hi <= WIDE_DEPTH_RATIO * lo:
+        return p
+    near = p[seen][depth <= np.sqrt(lo * hi)]
+    return near if len(near) >= MIN_BOX_POINTS else p
+
+
 def scene_normalization(scene: Scene) -> tuple[np.ndarray, float]:
     """(centre (3,), radius) of the region the cameras look at; world x maps to (x - centre) / radius.
 
-    From the sparse points when there are enough (median, 90th-percentile spread); otherwise the
+    From the sparse points when there are enough (median, 90th-percentile spread; of the near ones only
+    before a far background, :func:`foreground_points`); otherwise the
     point closest to all optical axes in the least-squares sense, with radius half its median
     distance to the cameras; if the axes are (nearly) parallel, a point at mid depth in front of them.
     """
-    if scene.points is not None and len(scene.points) >= 20:
-        p = np.asarray(scene.points, dtype=np.float64)
+    if scene.points is not None and len(scene.points) >= MIN_BOX_POINTS:
+        p = foreground_points(scene)
         c: np.ndarray = np.median(p, axis=0)
         r = float(np.percentile(np.linalg.norm(p - c, axis=1), 90))
         if r > 1e-9:
@@ -296,7 +342,7 @@ def _fit(scene: Scene, cfg: NerfConfig) -> NerfRenderer:
     torch.manual_seed(cfg.seed)
     dev = fit_device(cfg.device)
     gen = torch.Generator(device=dev).manual_seed(cfg.seed)
-    near, far = cfg.bounds or scene.depth_bounds()
+    near, far = cfg.bounds or sampling_bounds(scene)
     near, far = float(max(near, 1e-4)), float(max(far, near * 1.05))
     centre, radius = scene_normalization(scene)
     o_all, d_all, c_all, w_all = _training_rays(scene)

@@ -1,0 +1,144 @@
+"""What the report opens with: a verdict per reconstructor (and per N in a sweep) on whether densifying with
+sparself's views helps it, and the PSNR-against-N series of a sweep (``evaluate --inputs 9,12,25``).
+
+Read from ``results.json`` scenes (dicts), old single-N files included: scenes without ``inputs_n`` are
+judged together, one without ``capture`` is its own capture.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sparself.evaluation.results import NETWORK, finite, mean_of, share_of_oracle_gain
+
+HELPS, DOES_NOT_HELP, CANNOT_TELL = "helps", "does not help", "cannot tell"
+MIN_CHANGE_DB = 0.1  # a change smaller than this is no change, whatever the spread over seeds
+# the rows of the PSNR-against-N plot: (key in a reconstructor's results, label)
+SWEEP_ROWS = (("base", "N"), (NETWORK, "N + sparself"), ("flow", "N + flow"), ("oracle", "oracle (N + real)"))
+
+
+def n_inputs(s: dict) -> int | None:
+    """A run's N as the evaluation asked for it (None in results from before the sweep: one N for all; a
+    sparse capture's own input count differs from N and is not grouped by)."""
+    return s.get("inputs_n")
+
+
+def capture(s: dict) -> str:
+    return s.get("capture") or s.get("name", "?")
+
+
+def decide(change: float | None, spread: float | None) -> str:
+    """HELPS when the PSNR gain exceeds both MIN_CHANGE_DB and the spread over seeds; DOES_NOT_HELP when even
+    the gain plus the spread stays under MIN_CHANGE_DB; CANNOT_TELL otherwise (the spread covers both)."""
+    if change is None:
+        return CANNOT_TELL
+    spread = spread or 0.0
+    if change > MIN_CHANGE_DB and change > spread:
+        return HELPS
+    if change + spread < MIN_CHANGE_DB:
+        return DOES_NOT_HELP
+    return CANNOT_TELL
+
+
+@dataclass
+class Verdict:
+    """One reconstructor at one N over the captures whose instrument holds: the mean PSNR change from N to
+    N + sparself, the mean spread (std over seeds) of N + sparself, the mean share of the oracle's gain (where
+    measurable) and the captures whose instrument failed (more real photos did not help: not counted)."""
+
+    recon: str
+    n: int | None
+    word: str
+    change_db: float | None = None
+    spread_db: float | None = None
+    share: float | None = None
+    oracle_gain_db: float | None = None
+    captures: int = 0
+    failed: list[str] = field(default_factory=list)
+    shared: int = 0  # captures whose oracle share is measurable (an oracle that gains >= 0.1 dB)
+
+    def sentence(self, sweep: bool) -> str:
+        who = f"{self.recon} at N = {self.n}" if sweep and self.n else self.recon
+        failed = (
+            f"; instrument failed on {', '.join(self.failed)} (more real photos did not help)" if self.failed else ""
+        )
+        if self.change_db is None:
+            return f"{who}: {self.word}: no capture to judge by{failed}."
+        spread = f" ± {self.spread_db:.2f} dB over seeds" if self.spread_db is not None else " (one seed)"
+        share = ""
+        if self.share is not None:
+            on = f" on the {self.shared} capture(s) with one" if self.shared < self.captures else ""
+            share = f"; {100 * self.share:.0f} % of the oracle's gain ({self.oracle_gain_db:+.2f} dB){on}"
+        return (
+            f"{who}: {self.word}: N + sparself {self.change_db:+.2f} dB PSNR over N{spread}{share}; "
+            f"{self.captures} capture(s){failed}."
+        )
+
+
+def _mean(vals: list) -> float | None:
+    v = [x for x in vals if x is not None]
+    return float(np.mean(v)) if v else None
+
+
+def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
+    """The verdict on ``recon`` from the scenes (one N) that ran it."""
+    changes, spreads, shares, gains, failed = [], [], [], [], []
+    for s in scenes:
+        d = s.get("densification", {}).get(recon, {})
+        if str(d.get("instrument", "ok")).startswith("failed"):
+            failed.append(capture(s))
+            continue
+        base = mean_of(d.get("base"), "psnr")[0]
+        net, sd = mean_of(d.get(NETWORK), "psnr")
+        if base is None or net is None:
+            continue
+        changes.append(net - base)
+        spreads.append(sd)
+        oracle = mean_of(d.get("oracle"), "psnr")[0]
+        share = share_of_oracle_gain(base, net, oracle)
+        shares.append(share)
+        gains.append(None if share is None or oracle is None else oracle - base)
+    change, spread = _mean(changes), _mean(spreads)
+    word = decide(change, spread)
+    shared = sum(x is not None for x in shares)
+    return Verdict(recon, n, word, change, spread, _mean(shares), _mean(gains), len(changes), failed, shared)
+
+
+def verdicts(ok: list[dict], recons: list[str]) -> list[Verdict]:
+    """One verdict per reconstructor and N (in ascending N)."""
+    out = []
+    for r in recons:
+        ran = [s for s in ok if r in s.get("densification", {})]
+        for n in sorted({n_inputs(s) or 0 for s in ran}):
+            out.append(verdict([s for s in ran if (n_inputs(s) or 0) == n], r, n or None))
+    return out
+
+
+def is_sweep(ok: list[dict]) -> bool:
+    """Whether some capture ran at more than one N."""
+    ns: dict[str, set] = {}
+    for s in ok:
+        ns.setdefault(capture(s), set()).add(n_inputs(s))
+    return any(len(v) > 1 for v in ns.values())
+
+
+def sweep_series(ok: list[dict], recons: list[str]) -> dict[str, dict[str, dict[str, tuple[list[int], list[float]]]]]:
+    """capture -> reconstructor -> row label -> (N values, mean PSNR at each), for the captures that ran at
+    more than one N (rows and points that did not run are left out)."""
+    out: dict = {}
+    for cap in dict.fromkeys(capture(s) for s in ok):
+        runs = sorted((s for s in ok if capture(s) == cap and n_inputs(s)), key=lambda s: n_inputs(s) or 0)
+        if len(runs) < 2:
+            continue
+        for r in recons:
+            rows = {}
+            for key, label in SWEEP_ROWS:
+                pts = [(n_inputs(s), mean_of(s.get("densification", {}).get(r, {}).get(key), "psnr")[0]) for s in runs]
+                pts = [(n, finite(v)) for n, v in pts if finite(v) is not None]
+                if pts:
+                    rows[label] = ([n for n, _ in pts], [v for _, v in pts])
+            if rows:
+                out.setdefault(cap, {})[r] = rows
+    return out
