@@ -14,7 +14,7 @@ from sparself.synthesis.plan import (
     PlanConfig,
     load_plan,
     nearest_neighbour_order,
-    order_frames,
+    plan_order,
     plan_poses,
     plan_sequence,
     save_plan,
@@ -137,9 +137,9 @@ def test_nearest_neighbour_order_recovers_a_shuffled_capture():
     recovered = perm[nn]
     assert list(recovered) in (list(range(25)), list(range(24, -1, -1)))
     # auto detects the shuffle; capture keeps the given order
-    assert list(order_frames(shuffled, "auto")) == list(nn)
-    assert list(order_frames(shuffled, "capture")) == list(range(25))
-    assert list(order_frames(scene, "auto")) == list(range(25))
+    assert list(plan_order(shuffled, "auto")) == list(nn)
+    assert list(plan_order(shuffled, "capture")) == list(range(25))
+    assert list(plan_order(scene, "auto")) == list(range(25))
     # the plan on the shuffled scene is the same set of poses as on the ordered one
     a = sorted(tuple(np.round(f.pose.center, 9)) for f in plan_poses(scene))
     b = sorted(tuple(np.round(f.pose.center, 9)) for f in plan_poses(shuffled))
@@ -147,7 +147,7 @@ def test_nearest_neighbour_order_recovers_a_shuffled_capture():
     # and its indices count positions along the path, matching the re-indexed scene
     ordered, targets = plan_sequence(shuffled)
     assert [f.index for f in ordered.frames] == list(range(25))
-    assert [f.name for f in ordered.frames] == [shuffled.frames[i].name for i in order_frames(shuffled)]
+    assert [f.name for f in ordered.frames] == [shuffled.frames[i].name for i in plan_order(shuffled)]
     for f in targets:
         if 0 < f.index < 24:
             i = int(f.index)

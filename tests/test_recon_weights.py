@@ -105,9 +105,9 @@ def test_a_weight_0_synthetic_frame_does_not_move_the_fit(which):
         cfg = SplatConfig(
             steps=20,
             init_points=200,
-            densify_every=5,
-            densify_from=0.2,
-            densify_until=0.8,
+            grow_every=5,
+            grow_from=0.2,
+            grow_until=0.8,
             max_gaussians=400,
             progress=False,
             seed=3,

@@ -181,9 +181,9 @@ def test_tiny_fit_lowers_the_loss_and_raises_training_psnr():
     cfg = SplatConfig(
         steps=60,
         init_points=300,
-        densify_every=15,
-        densify_from=0.2,
-        densify_until=0.8,
+        grow_every=15,
+        grow_from=0.2,
+        grow_until=0.8,
         max_gaussians=600,
         progress=False,
         seed=3,

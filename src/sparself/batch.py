@@ -51,7 +51,7 @@ from sparself.core.outputs import (
     write_marker,
 )
 from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig
-from sparself.evaluation.evaluate import read_manifest as read_text_manifest
+from sparself.evaluation.evaluate import read_capture_list
 from sparself.evaluation.instruments import versions
 from sparself.evaluation.protocol import name_from_source, oracle_share
 from sparself.evaluation.report import safe_name, write_densify_report, write_report
@@ -78,7 +78,7 @@ def read_manifest(path: Path, kind: str) -> list[Capture]:
     Relative paths are relative to the manifest."""
     path = Path(path)
     if path.suffix.lower() not in (".json", ".yaml", ".yml"):
-        return _named(path, [Capture("", p) for p in read_text_manifest(path)])
+        return _named(path, [Capture("", p) for p in read_capture_list(path)])
     data = _load_structured(path)
     defaults = data.get("defaults", {}) if isinstance(data, dict) else {}
     entries = data.get("captures") if isinstance(data, dict) else data

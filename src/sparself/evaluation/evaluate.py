@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 # ---- many scenes -----------------------------------------------------------------------------------
 
 
-def read_manifest(path: Path) -> list[Path]:
+def read_capture_list(path: Path) -> list[Path]:
     """Scene paths listed one per line (blank lines and # comments ignored; relative to the file)."""
     path = Path(path)
     if not path.is_file():
@@ -177,7 +177,7 @@ def run_cli(
     :class:`EvalConfig` (or of :meth:`EvalConfig.quick`). train_cfg: the network's training options.
     """
     check_not_input(out, [Input("manifest", manifest)])
-    paths = [Path(p) for p in scene_paths] + (read_manifest(manifest) if manifest else [])
+    paths = [Path(p) for p in scene_paths] + (read_capture_list(manifest) if manifest else [])
     if not paths:
         raise InputError("no scenes given (pass scene folders or --manifest FILE)")
     from sparself.core.progress import show_progress

@@ -84,7 +84,7 @@ from sparself.evaluation.results import (
     SeededSets,
     share_of_oracle_gain,
 )
-from sparself.evaluation.split import Split, make_split
+from sparself.evaluation.split import HeldOutSplit, make_split
 from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_views, weighted_scene
 from sparself.recon import Renderer
 from sparself.synthesis.plan import PlanConfig, plan_poses
@@ -97,7 +97,7 @@ def pose_only(f: Frame, **kw) -> Frame:
     return replace(f, path=None, image=None, **kw)
 
 
-def snap(index: float, split: Split) -> int | None:
+def snap(index: float, split: HeldOutSplit) -> int | None:
     """The real frame a planned pose at ``index`` is snapped to on a dense capture: a midpoint to the
     ``between`` frame nearest it in its gap, an extrapolation to the ``margin`` frame nearest it beyond
     the same end input; None when there is none (or on a sparse capture)."""
@@ -114,7 +114,7 @@ def snap(index: float, split: Split) -> int | None:
     return min(cands, key=lambda i: (abs(i - index), i)) if cands else None
 
 
-def plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
+def plan(inputs: Scene, split: HeldOutSplit, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
     """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints and
     extrapolations)."""
     planned = plan_poses(inputs, PlanConfig(n_mid=cfg.n_mid, n_extra=cfg.n_extra, order="capture"))
@@ -162,7 +162,7 @@ class SceneEval:
     name: str
     cfg: EvalConfig
     full: Scene
-    split: Split
+    split: HeldOutSplit
     scored: list[int]  # held-out frames that are scored
     inputs: Scene
     planned: list[Frame]
@@ -289,7 +289,7 @@ def run_name(capture: str, cfg: EvalConfig, n_inputs: int) -> str:
 
 
 def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None, n_inputs: int | None = None) -> SceneEval:
-    """Split the capture (``n_inputs`` inputs, None: the largest of ``cfg.inputs``), plan the novel poses and
+    """HeldOutSplit the capture (``n_inputs`` inputs, None: the largest of ``cfg.inputs``), plan the novel poses and
     draw the cameras."""
     n_inputs = n_inputs or max(cfg.inputs)
     capture = scene_name(scene)

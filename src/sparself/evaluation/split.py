@@ -43,7 +43,7 @@ def gap_truth(available: Sequence[int], inputs: Sequence[int]) -> list[int | Non
 
 
 @dataclass
-class Split:
+class HeldOutSplit:
     """Which frame (by position in capture order) plays which role.
 
     kind: "dense" or "sparse". eval: held-out frames. inputs: sparse input frames.
@@ -73,7 +73,7 @@ def extrapolation_margin(n: int, cfg: EvalConfig) -> int:
     return max(round((n - 1) / (min(cfg.inputs) + 1)), cfg.holdout_every + 1)
 
 
-def dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig, n_inputs: int) -> Split:
+def dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig, n_inputs: int) -> HeldOutSplit:
     """``n_inputs`` inputs evenly spaced over the frames inside the extrapolation margins (all of them if too
     few for the largest N: the margins, and so which frames are extrapolations, are the same for every N)."""
     m = extrapolation_margin(n, cfg)
@@ -97,10 +97,10 @@ def dense_split(n: int, held: list[int], rest: list[int], cfg: EvalConfig, n_inp
             f"{len(beyond)} held-out frames there are scored as extrapolations; "
         )
     rule += f"the other {len(between)} real frames are ground truth for midpoint poses and the oracle"
-    return Split("dense", held, inputs, between, rule, margin)
+    return HeldOutSplit("dense", held, inputs, between, rule, margin)
 
 
-def make_split(n: int, cfg: EvalConfig, n_inputs: int | None = None) -> Split:
+def make_split(n: int, cfg: EvalConfig, n_inputs: int | None = None) -> HeldOutSplit:
     """The protocol's split of a capture of n frames with ``n_inputs`` inputs (one of ``cfg.inputs``; None:
     the largest). Which frames are held out, and whether the capture is dense, do not depend on it."""
     n_inputs = n_inputs or max(cfg.inputs)
@@ -116,4 +116,4 @@ def make_split(n: int, cfg: EvalConfig, n_inputs: int | None = None) -> Split:
         f"the other {len(inputs)} "
         "are the inputs; no oracle (the only real frames between inputs are the held-out ones)"
     )
-    return Split("sparse", held, inputs, [], rule)
+    return HeldOutSplit("sparse", held, inputs, [], rule)

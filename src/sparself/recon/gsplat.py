@@ -37,7 +37,7 @@ class GsplatConfig:
     lr_opacities: float = 5e-2
     lr_sh0: float = 2.5e-3
     lr_shN: float = 2.5e-3 / 20
-    densify: bool = True  # gsplat's DefaultStrategy (clone/split/prune) when available
+    grow: bool = True  # gsplat's DefaultStrategy (clone/split/prune the Gaussians) when available
     seed: int = 0
     max_side: int | None = None
     progress: bool = True
@@ -145,15 +145,15 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     }
     optimizers = {k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15) for k, lr in lrs.items()}
     strategy = state = None
-    if cfg.densify:
+    if cfg.grow:
         try:
             from gsplat.strategy import DefaultStrategy
 
             strategy = DefaultStrategy(refine_stop_iter=int(cfg.steps * 0.5), verbose=False)
             strategy.check_sanity(params, optimizers)
             state = strategy.initialize_state(scene_scale=scene_scale)
-        except Exception as e:  # older gsplat without strategies: fit without densification
-            log.warning("gsplat: densification strategy unavailable (%s); fitting without it", e)
+        except Exception as e:  # older gsplat without strategies: fit without growing the Gaussians
+            log.warning("gsplat: clone/split strategy unavailable (%s); fitting without it", e)
             strategy = None
     images = [torch.tensor(scene.load(i), device=dev) for i in range(len(scene))]
     weights = [None if w is None else torch.tensor(w, device=dev) for w in map(scene.pixel_weight, range(len(scene)))]

@@ -50,8 +50,8 @@ class SplatConfig:
     steps: optimisation steps (one training view each), at least ``min_steps_per_view`` x views so that a
     denser capture is not fitted less per view (with a fixed count, 35 real views of llff_bird scored
     below 25: 26.44 vs 26.67 dB); init_points: Gaussians to start from (SfM points
-    subsampled, or random in the depth bounds); max_gaussians: densification stops adding beyond this;
-    densify_from / densify_until / densify_every: clone/split schedule (fractions of ``steps`` for the
+    subsampled, or random in the depth bounds); max_gaussians: growth (clone/split) stops adding beyond this;
+    grow_from / grow_until / grow_every: the Gaussians' clone/split schedule (fractions of ``steps`` for the
     first two); grad_threshold: mean screen-space gradient (NDC units, as the reference) that marks a
     Gaussian for cloning (small) or splitting (large: max scale > ``dense_scale`` x scene extent);
     prune_opacity: Gaussians below it are removed at each refinement; sh_degree: 0 or 1, the degree-1
@@ -63,9 +63,9 @@ class SplatConfig:
     min_steps_per_view: int = 60
     init_points: int = 3000
     max_gaussians: int = 8000
-    densify_from: float = 0.1
-    densify_until: float = 0.6
-    densify_every: int = 100
+    grow_from: float = 0.1
+    grow_until: float = 0.6
+    grow_every: int = 100
     grad_threshold: float = 2e-4
     dense_scale: float = 0.01
     prune_opacity: float = 0.005
@@ -159,7 +159,7 @@ def project(g: Gaussians, w2c: torch.Tensor, K: torch.Tensor, width: int, height
         extent = torch.sqrt(2.0 * torch.log((opac / ALPHA_MIN).clamp_min(1.0)))
         radius = extent * torch.sqrt(lam.clamp_min(0.0))
         m2 = means2d.detach()
-        # visible as the reference decides it (a square of the largest axis): the densification counts these
+        # visible as the reference decides it (a square of the largest axis): the growth step counts these
         keep = (
             (z > NEAR_PLANE)
             & (det > 0)
@@ -385,9 +385,7 @@ def _replace(g: Gaussians, opt: torch.optim.Adam, keep: torch.Tensor, new: dict[
     return Gaussians(**out)
 
 
-def _densify(
-    g: Gaussians, opt, grads: torch.Tensor, cfg: SplatConfig, extent: float, gen: torch.Generator
-) -> Gaussians:
+def _grow(g: Gaussians, opt, grads: torch.Tensor, cfg: SplatConfig, extent: float, gen: torch.Generator) -> Gaussians:
     """Clone small high-gradient Gaussians, split large ones in two (scales / 1.6), prune faint ones."""
     with torch.no_grad():
         big = torch.exp(g.log_scales).amax(1) > cfg.dense_scale * extent
@@ -436,7 +434,7 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
     bg = torch.tensor(cfg.background, dtype=torch.float32)
     decay = 0.01 ** (1.0 / max(cfg.steps, 1))
     acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
-    d0, d1 = int(cfg.densify_from * cfg.steps), int(cfg.densify_until * cfg.steps)
+    d0, d1 = int(cfg.grow_from * cfg.steps), int(cfg.grow_until * cfg.steps)
     history: list[float] = []
     for step in tqdm(range(cfg.steps), desc="3dgs fit", disable=not cfg.progress, leave=False):
         i = int(rng.integers(len(scene)))
@@ -454,8 +452,8 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
             gr = p.means2d.grad * torch.tensor([cam.width / 2.0, cam.height / 2.0])  # pixels -> NDC
             acc.index_add_(0, p.ids, gr.norm(dim=-1))
             cnt.index_add_(0, p.ids, torch.ones(len(p.ids)))
-        if d0 <= step < d1 and step > 0 and step % cfg.densify_every == 0:
-            g = _densify(g, opt, acc / cnt.clamp_min(1), cfg, extent, gen)
+        if d0 <= step < d1 and step > 0 and step % cfg.grow_every == 0:
+            g = _grow(g, opt, acc / cnt.clamp_min(1), cfg, extent, gen)
             acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
     log.info(
         "3dgs (cpu): %d Gaussians after %d steps, final loss %.4f",

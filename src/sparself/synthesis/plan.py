@@ -149,7 +149,7 @@ def nearest_neighbour_order(scene: Scene) -> np.ndarray:
     return best
 
 
-def order_frames(scene: Scene, order: str = "auto") -> np.ndarray:
+def plan_order(scene: Scene, order: str = "auto") -> np.ndarray:
     """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``. When the file
     names' order (numbers compared as numbers) walks much further than the camera positions' nearest-
     neighbour path, names and positions disagree: a warning says so and "auto" follows the positions."""
@@ -247,7 +247,7 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     if n < 3:
         src = scene.source or "scene"
         raise InputError(f"{src}: needs at least 3 posed views to plan novel poses, got {n}")
-    seq = order_frames(scene, cfg.order)
+    seq = plan_order(scene, cfg.order)
     idx = _indices_along(scene, seq)
     out: list[Frame] = []
     for g in _choose_gaps(scene, seq, int(cfg.n_mid), cfg.gaps):
@@ -279,7 +279,7 @@ def plan_sequence(scene: Scene, cfg: PlanConfig | None = None) -> tuple[Scene, l
     """
     cfg = cfg or PlanConfig()
     targets = plan_poses(scene, cfg)
-    return reindexed(scene, order_frames(scene, cfg.order)), targets
+    return reindexed(scene, plan_order(scene, cfg.order)), targets
 
 
 # ---- plan files ----------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from sparself.core.errors import InputError
 from sparself.core.names import check_names
 from sparself.core.outputs import Input, check_not_input, check_output_dir, scene_folder, scene_inputs
 from sparself.model.query import Sources, flow_aligned, novel_queries, render_with_confidence
-from sparself.synthesis.plan import load_plan, order_frames, reindexed
+from sparself.synthesis.plan import load_plan, plan_order, reindexed
 from sparself.synthesis.run import Run, load_run, recorded_scene, run_scene_mismatch
 from sparself.synthesis.train_config import amp_dtype, autocast
 
@@ -165,7 +165,7 @@ def synthesize_plan(
     check_names([t.name for t in targets], plan, what="frame name", taken=[f.name for f in scene.frames])
     order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
-        scene = reindexed(scene, order_frames(scene, order))
+        scene = reindexed(scene, plan_order(scene, order))
     syn = synthesize_with_confidence(run, scene, targets)
     written = ensure_points(scene) if triangulate else scene
     dense = densify_scene(written, targets, syn.images, syn.confidence)

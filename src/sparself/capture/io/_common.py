@@ -55,7 +55,7 @@ def unique_cameras(cams: list[Camera]) -> tuple[dict[int, Camera], list[int]]:
     return {i: c for c, i in ids.items()}, out
 
 
-def order_frames(scene: Scene) -> Scene:
+def in_capture_order(scene: Scene) -> Scene:
     """Sort frames by image name in capture order (IMG_2 before IMG_10) and set ``index`` to 0..N-1."""
     scene.frames.sort(key=lambda f: capture_key(f.name))
     for i, f in enumerate(scene.frames):

@@ -1,8 +1,9 @@
 """What a densified scene carries beyond its frames, so that trainers never test on a synthesized view.
 
-* **Split.** Val/test = the real photos the user held out, else every 8th real photo in index order
-  (the first, the 9th, ...: what ``llffhold=8`` picks on the original capture). Every synthesized frame
-  is in train. Written as ``transforms.json`` lists, COLMAP-side list files and ``sparself.json``.
+* **The split** (:class:`DenseSplit`). Val/test = the real photos the user held out, else the images that
+  position-based loaders test: every 8th of all names in the written order, from the first, always real
+  photos (below). Every synthesized frame is in train. Written as ``transforms.json`` lists, COLMAP-side
+  list files and ``sparself.json``.
 * **Order that position-based loaders cannot get wrong.** gsplat (``test_every=8``), NeRF's ``llffhold=8``,
   3DGS' ``--eval`` and nerfstudio's ``interval`` mode test the images at sorted positions 0, 8, 16, ...
   :func:`safe_order` keeps index order but moves a synthesized frame that would land on such a position
@@ -72,7 +73,7 @@ class DenseInfo:
 
 
 @dataclass(frozen=True)
-class Split:
+class DenseSplit:
     """Image names per split (as written in ``images/``) and the rule that chose val/test."""
 
     train: tuple[str, ...]
@@ -150,7 +151,7 @@ def synthetic_ext(real_names: Sequence[str]) -> str:
     return ".jpg" if real_names and Path(real_names[0]).suffix.lower() in _JPEG else ".png"
 
 
-def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
+def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, DenseSplit, list[str]]:
     """The dense scene as written: frames in :func:`safe_order`, renamed with rank prefixes; its split;
     and each written frame's original name. Observations follow the renaming."""
     frames = sorted(scene.frames, key=lambda f: f.index)
@@ -190,13 +191,13 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
         rule = f"every {EVERY}th real photo in capture order, from the first"
     test = [n for f, n in zip(frames, names) if f.name in held]
     train = tuple(n for f, n in zip(frames, names) if f.name not in held)
-    split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
+    split = DenseSplit(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
     renamed = [replace(f, name=n) for f, n in zip(frames, names)]
     obs = {n: scene.observations[f.name] for f, n in zip(frames, names) if f.name in scene.observations}
     return replace(scene, frames=renamed, observations=obs), split, [f.name for f in frames]
 
 
-def write_split_files(folder: Path, split: Split) -> None:
+def write_split_files(folder: Path, split: DenseSplit) -> None:
     """nerfstudio's COLMAP parser lists (``train_list.txt``, ``val_list.txt``, ``test_list.txt`` in the
     scene folder) and 3DGS' ``sparse/0/test.txt``; none without a test split."""
     if not split.test:
@@ -208,7 +209,7 @@ def write_split_files(folder: Path, split: Split) -> None:
         (model / "test.txt").write_text("".join(n + "\n" for n in split.test))
 
 
-def write_sparself_json(folder: Path, scene: Scene, split: Split, sources: Sequence[str], info: DenseInfo) -> Path:
+def write_sparself_json(folder: Path, scene: Scene, split: DenseSplit, sources: Sequence[str], info: DenseInfo) -> Path:
     """``sparself.json``: format version, run and plan, each frame's flag/index/original name, the split."""
     doc = {
         "format": FORMAT,

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.capture.images import image_size_of, list_images
-from sparself.capture.io._common import check_finite, frame_name_order, order_frames, unique_cameras
+from sparself.capture.io._common import check_finite, frame_name_order, in_capture_order, unique_cameras
 from sparself.capture.io.dense import read_masks_beside
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
@@ -153,7 +153,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         source_format="llff",
         frame_bounds=frame_bounds,
     )
-    return read_masks_beside(order_frames(scene), image_dir)  # indices in capture order
+    return read_masks_beside(in_capture_order(scene), image_dir)  # indices in capture order
 
 
 def _say_scaled(npy: Path, scaled: dict[tuple, list[str]], n: int) -> None:

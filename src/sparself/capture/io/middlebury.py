@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.capture.images import image_size_of
-from sparself.capture.io._common import check_finite, order_frames, unique_cameras
+from sparself.capture.io._common import check_finite, in_capture_order, unique_cameras
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose, rotmat_to_quat
@@ -75,7 +75,7 @@ def read_middlebury(path: Path) -> Scene:
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
-    return order_frames(Scene(cameras=cameras, frames=frames, source=par, source_format="middlebury"))
+    return in_capture_order(Scene(cameras=cameras, frames=frames, source=par, source_format="middlebury"))
 
 
 def write_middlebury(scene: Scene, path: Path) -> Path:

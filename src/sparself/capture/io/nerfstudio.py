@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.capture.images import image_size_of
-from sparself.capture.io._common import check_finite, frame_name_order, order_frames, unique_cameras
+from sparself.capture.io._common import check_finite, frame_name_order, in_capture_order, unique_cameras
 from sparself.capture.io.dense import MASKS, checked_mask, mask_name
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
@@ -164,7 +164,7 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
         scene.points, colors = _read_ply(js.parent / meta["ply_file_path"])
         if colors is not None:
             scene.point_colors = colors
-    return order_frames(scene)
+    return in_capture_order(scene)
 
 
 def _intrinsics(cam: Camera) -> dict:
@@ -195,7 +195,7 @@ def _intrinsics(cam: Camera) -> dict:
 
 def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None, masks: bool = False) -> dict:
     """The ``transforms.json`` content: global intrinsics when the scene has one camera, else per frame;
-    each frame flagged ``"synthetic"``; with a :class:`sparself.io.dense.Split`, the ``train_filenames``,
+    each frame flagged ``"synthetic"``; with a :class:`sparself.capture.io.dense.DenseSplit`, the ``train_filenames``,
     ``val_filenames`` and ``test_filenames`` lists (nerfstudio needs all three when one is present);
     with ``masks``, each frame's ``mask_path`` (``masks/<stem>.png``, :func:`sparself.io.dense.write_masks`)."""
     order = frame_name_order(scene)
