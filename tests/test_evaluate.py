@@ -14,7 +14,7 @@ from sparself.capture.images import resize_image, save_image
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.geometry import Pose
 from sparself.evaluation import evaluate as ev
-from sparself.evaluation import protocol
+from sparself.evaluation import protocol, scene_eval
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.instruments import network_factory
 from sparself.evaluation.results import NETWORK_WEIGHTED
@@ -133,7 +133,7 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
     for p in held:  # held-out images are gone from where the scene says they are
         shutil.move(str(p), vault / p.name)
     read = []
-    real_load = protocol.load_truth
+    real_load = scene_eval.load_truth
 
     def scoring_only(frame, size):
         if frame.path is not None and not frame.path.exists():
@@ -141,7 +141,7 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
             frame = replace(frame, path=vault / frame.path.name)
         return real_load(frame, size)
 
-    monkeypatch.setattr(protocol, "load_truth", scoring_only)
+    monkeypatch.setattr(scene_eval, "load_truth", scoring_only)
     hooks, calls = _hooks()
     out = tmp_path / "out"
     res = ev.evaluate([scene], out, cfg, **hooks)

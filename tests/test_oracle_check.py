@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from sparself.evaluation.protocol import oracle_share
+from sparself.evaluation.densification import oracle_share
 from sparself.evaluation.report import write_report
 from sparself.evaluation.results import NETWORK
 

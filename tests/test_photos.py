@@ -13,8 +13,8 @@ from PIL import Image
 
 from sparself.capture.images import list_images, load_image, needs_conversion
 from sparself.capture.io import read_scene, write_scene
+from sparself.capture.photos import validate_images
 from sparself.capture.scene import Camera, Frame, Scene
-from sparself.capture.sfm import validate_images
 from sparself.cli import main
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose, rotmat_to_quat
@@ -185,8 +185,8 @@ def test_written_scene_holds_upright_rgb_copies(tmp_path):
 
 # ---- the pose check: jumps between capture-order neighbours ----------------------------------------------
 
+from sparself.capture.photos import exif_focal_px  # noqa: E402
 from sparself.capture.posecheck import ImageStats, camera_warnings, check_poses  # noqa: E402
-from sparself.capture.sfm import exif_focal_px  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

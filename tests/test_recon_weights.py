@@ -14,7 +14,7 @@ from kornia.metrics import ssim as kornia_ssim
 from planescene import DEPTH, plane_scene
 from sparself.capture.scene import Frame
 from sparself.evaluation import evaluate as ev
-from sparself.evaluation import protocol
+from sparself.evaluation import scene_eval
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.results import MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED
 from sparself.evaluation.split import make_split
@@ -169,8 +169,10 @@ def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(t
     )
     held = {scene.frames[i].name: scene.frames[i].image for i in make_split(24, cfg).eval}
     scene = replace(scene, frames=[replace(f, image=None) if f.name in held else f for f in scene.frames])
-    real_load = protocol.load_truth
-    monkeypatch.setattr(protocol, "load_truth", lambda f, size: held[f.name] if f.name in held else real_load(f, size))
+    real_load = scene_eval.load_truth
+    monkeypatch.setattr(
+        scene_eval, "load_truth", lambda f, size: held[f.name] if f.name in held else real_load(f, size)
+    )
 
     def network(sc, seed):
         from sparself.synthesis.baselines import BASELINES

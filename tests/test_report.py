@@ -6,8 +6,9 @@ import re
 
 import numpy as np
 
+from sparself.evaluation.conclusions import conclusions
 from sparself.evaluation.document import fmt
-from sparself.evaluation.report import conclusions, write_report
+from sparself.evaluation.report import write_report
 
 
 def _summary(psnr, ssim, lpips, seeds=None):

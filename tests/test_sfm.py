@@ -12,9 +12,10 @@ from PIL import Image
 
 from sparself.capture.images import load_image
 from sparself.capture.io import read_colmap, read_scene
+from sparself.capture.photos import validate_images
 from sparself.capture.posecheck import compare_poses
 from sparself.capture.scene import Camera, Frame, Scene
-from sparself.capture.sfm import SfmConfig, recover_poses, validate_images
+from sparself.capture.sfm import SfmConfig, recover_poses
 from sparself.cli import main
 from sparself.core.errors import InputError, RegistrationError
 from sparself.core.geometry import Pose, rotmat_to_quat, transform_pose

@@ -14,7 +14,7 @@ from sparself.capture.scene import MIN_POINTS
 from sparself.capture.triangulate import TriangulateConfig, Triangulated, triangulate
 from sparself.core.errors import ConfigError
 from sparself.evaluation import evaluate as ev
-from sparself.evaluation import protocol
+from sparself.evaluation import protocol, scene_eval
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.split import make_split
 from sparself.synthesis.baselines import BASELINES
@@ -128,9 +128,9 @@ def test_evaluation_points_come_from_the_inputs_alone(tmp_path, monkeypatch):
     vault.mkdir()
     for i in split.eval:  # held-out photos are gone: reading one outside scoring would fail the scene
         shutil.move(str(scene.frames[i].path), vault / scene.frames[i].name)
-    real_truth = protocol.load_truth
+    real_truth = scene_eval.load_truth
     monkeypatch.setattr(
-        protocol,
+        scene_eval,
         "load_truth",
         lambda f, size: real_truth(replace(f, path=f.path if f.path.exists() else vault / f.path.name), size),
     )

@@ -50,11 +50,14 @@ from sparself.core.outputs import (
     remove_stale_temps,
     write_marker,
 )
+from sparself.evaluation.batch_report import write_densify_report
 from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig
+from sparself.evaluation.densification import oracle_share
 from sparself.evaluation.evaluate import read_capture_list
 from sparself.evaluation.instruments import versions
-from sparself.evaluation.protocol import name_from_source, oracle_share
-from sparself.evaluation.report import safe_name, write_densify_report, write_report
+from sparself.evaluation.protocol import name_from_source
+from sparself.evaluation.report import write_report
+from sparself.evaluation.report_context import safe_name
 from sparself.evaluation.results import NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet, SeededSets
 from sparself.synthesis.plan import PlanConfig
 from sparself.synthesis.train_config import TrainConfig

@@ -49,52 +49,40 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 from tqdm.auto import tqdm
 
-from sparself.capture.images import save_image
 from sparself.capture.plot import plot_cameras
 from sparself.capture.scene import MIN_POINTS, Frame, Scene, preloaded
 from sparself.capture.triangulate import triangulate, with_points
 from sparself.core.errors import InputError, SparselfError
 from sparself.core.geometry import rotation_angle_deg
 from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig
+from sparself.evaluation.densification import densification
 from sparself.evaluation.instruments import (
     SynthFn,
     baseline_fns,
     images_and_confidence,
-    load_truth,
     network_factory,
-    reconstructor,
-    score,
-    with_images,
 )
-from sparself.evaluation.report import safe_name as _safe
+from sparself.evaluation.report_context import safe_name as _safe
 from sparself.evaluation.results import (
     EXTRAPOLATED,
     INTERPOLATED,
     NETWORK,
-    NETWORK_WEIGHTED,
-    FrameScore,
     ScoredSet,
     SeededSets,
-    share_of_oracle_gain,
 )
+from sparself.evaluation.scene_eval import SceneEval, pose_only
 from sparself.evaluation.split import HeldOutSplit, make_split
-from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_views, weighted_scene
 from sparself.recon import Renderer
 from sparself.synthesis.plan import PlanConfig, plan_poses
 
 log = logging.getLogger(__name__)
-
-
-def pose_only(f: Frame, **kw) -> Frame:
-    """A copy of f with no pixels attached: what synthesizers and renderers may see of a held-out frame."""
-    return replace(f, path=None, image=None, **kw)
 
 
 def snap(index: float, split: HeldOutSplit) -> int | None:
@@ -152,75 +140,6 @@ def name_from_source(source: str | Path) -> str:
     while (src.name.isdigit() or src.name == "sparse") and src.parent != src:
         src = src.parent
     return src.name
-
-
-@dataclass
-class SceneEval:
-    """One scene's evaluation as its named steps fill it in: the split, the inputs and planned poses, the
-    images each method synthesized at the planned poses, and the results (``res``, JSON-able)."""
-
-    name: str
-    cfg: EvalConfig
-    full: Scene
-    split: HeldOutSplit
-    scored: list[int]  # held-out frames that are scored
-    inputs: Scene
-    planned: list[Frame]
-    mid_truth: dict[int, int]  # planned pose k -> the real frame at it (dense: midpoints and extrapolations)
-    res: dict
-    out_dir: Path | None = None
-    ex_dir: Path | None = None
-    net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
-    net_conf: list[np.ndarray | None] = field(default_factory=list)  # their confidence (T, H, W), per seed
-    net_synth: SynthFn | None = None  # the first seed's network, kept to synthesize the validation views
-    validation: ValidationViews | None = None  # made once per scene, shared by every reconstructor
-    baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
-    on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step
-
-    def partial(self) -> None:
-        if self.on_partial is not None:
-            self.on_partial(self.res)
-
-    @property
-    def targets(self) -> list[Frame]:
-        """The scored held-out frames as poses only (what synthesizers and renderers see)."""
-        return [pose_only(self.full.frames[i]) for i in self.scored]
-
-    @property
-    def mid_targets(self) -> list[int]:
-        return list(self.mid_truth.values())
-
-    def score(
-        self,
-        images: np.ndarray,
-        label: str,
-        idx: list[int],
-        *,
-        held_out: bool = True,
-        seed: int | None = None,
-        views: int | None = None,
-    ) -> ScoredSet:
-        """Score ``images`` against the real photos of frames ``idx``; for held-out frames among the
-        examples, also save the images (and the ground truth once) for the report."""
-        rows = []
-        for k, i in enumerate(idx):
-            frame = self.full.frames[i]
-            truth = load_truth(frame, self.full.image_size(i))
-            rows.append(FrameScore(frame.name, i, **score(images[k], truth, self.cfg.lpips), group=self.split.group(i)))
-            if held_out and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
-                self._save_example(frame.name, label, images[k], truth)
-        return ScoredSet(rows, seed=seed, views=views)
-
-    def _save_example(self, frame: str, label: str, image: np.ndarray, truth: np.ndarray) -> None:
-        assert self.ex_dir is not None and self.out_dir is not None  # examples are saved into an output folder
-        d = self.ex_dir / _safe(frame)
-        d.mkdir(exist_ok=True)
-        if not (d / "ground_truth.png").exists():
-            save_image(d / "ground_truth.png", truth)
-        save_image(d / f"{_safe(label)}.png", image)
-        ex = self.res["examples"].setdefault(frame, {})
-        ex["ground_truth"] = str((d / "ground_truth.png").relative_to(self.out_dir))
-        ex[label] = str((d / f"{_safe(label)}.png").relative_to(self.out_dir))
 
 
 def sorted_resized(scene: Scene, cfg: EvalConfig) -> Scene:
@@ -381,125 +300,6 @@ def baseline_synthesis(ev: SceneEval, baselines: dict[str, SynthFn]) -> None:
         except Exception as e:  # one broken baseline must not hide the others
             log.warning("%s: baseline %s failed: %s", ev.name, bname, e)
             vs[bname] = {"error": f"{type(e).__name__}: {e}"}
-
-
-def oracle_scene(ev: SceneEval) -> Scene:
-    """The inputs plus the real photos at the snapped planned poses (planned poses without one, e.g.
-    extrapolations with no extrapolation margin, keep the network's seed-0 views, where it ran)."""
-    fill = ev.net_planned[0] if ev.net_planned else None
-    imgs, extra = [], []
-    for k, f in enumerate(ev.planned):
-        if k in ev.mid_truth:
-            # a real, non-held-out photo at exactly this pose (a between or margin frame, never an evaluation frame)
-            imgs.append(ev.full.load(ev.mid_truth[k]))
-            extra.append(f)
-        elif fill is not None:
-            imgs.append(fill[k])
-            extra.append(f)
-    return with_images(ev.inputs, extra, imgs)
-
-
-def densified_scenes(ev: SceneEval) -> list[tuple[str, int | None, Scene]]:
-    """(key, network seed or None, scene) for every reconstruction: N alone, N + each seed's network
-    views, N + each densify-baseline's views, and the oracle."""
-    runs: list[tuple[str, int | None, Scene]] = [("base", None, ev.inputs)]
-    for seed, imgs in enumerate(ev.net_planned, start=ev.cfg.first_seed):
-        runs.append((NETWORK, seed, with_images(ev.inputs, ev.planned, imgs)))
-    for b in ev.cfg.densify_baselines:
-        if b in ev.baseline_planned:
-            runs.append((b, None, with_images(ev.inputs, ev.planned, ev.baseline_planned[b])))
-    if ev.cfg.oracle and ev.split.kind == "dense" and ev.mid_truth:
-        runs.append(("oracle", None, oracle_scene(ev)))
-    return runs
-
-
-def oracle_share(entry: dict) -> None:
-    """The instrument check, then the share, of one reconstructor on one capture: more real photos must
-    not make it worse.
-
-    Sets ``instrument`` ("ok", or "failed: ..." when N + real photos (the oracle) does not beat N alone),
-    ``oracle_gain_db``, and ``oracle_share`` (``oracle_share_weighted`` for "N + sparself, weighted") only
-    when the instrument holds and the gain is measurable."""
-    if "oracle" not in entry or "base" not in entry:
-        return
-    b = entry["base"]["summary"]["psnr"]["mean"]
-    o = entry["oracle"]["summary"]["psnr"]["mean"]
-    entry["oracle_gain_db"] = float(o - b)
-    entry["instrument"] = (
-        "ok" if o > b else (f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
-    )
-    for key, share in ((NETWORK, "oracle_share"), (NETWORK_WEIGHTED, "oracle_share_weighted")):
-        if "summary" in entry.get(key, {}):
-            entry[share] = share_of_oracle_gain(b, entry[key]["summary"]["psnr"]["mean"], o)
-
-
-def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
-    """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
-    (which keeps what was done if a fit fails)."""
-    net = SeededSets()
-    for key, seed, sc in tqdm(
-        densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
-    ):
-        renderer = fit(sc)
-        entry.setdefault("backend", getattr(renderer, "backend", None))
-        imgs = render_targets(ev, renderer)
-        label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
-        scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
-        if seed is None:
-            entry[key] = scored.to_json()
-        else:
-            net.per_seed.append(scored)
-            entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append(scored.to_json())
-    if net.per_seed:
-        entry[NETWORK] = net.to_json()
-    if ev.cfg.weighted and ev.net_planned:
-        try:
-            weighted_fits(ev, rname, fit, entry)
-        except Exception as e:  # the plain results stand without it
-            log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
-            entry[NETWORK_WEIGHTED] = {"error": f"{type(e).__name__}: {e}"}
-    oracle_share(entry)
-    entry["status"] = "ok"
-
-
-def render_targets(ev: SceneEval, renderer) -> np.ndarray:
-    """The renderer's images at the scored held-out poses (poses only: no pixels reach it)."""
-    return np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
-
-
-def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
-    """'N + sparself, weighted': per seed, the inputs + its views (synthesized from all inputs) with their
-    confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
-    run's first seed (its network's views synthesized again without the held-back inputs)."""
-    if ev.validation is None:
-        assert ev.net_synth is not None  # kept by the first seed, which runs before any weighted fit
-        ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synth)
-    choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
-    choice["chosen_on_seed"] = ev.cfg.first_seed
-    sets, records = SeededSets(), []
-    for k, seed in enumerate(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))):
-        sc = weighted_scene(ev.inputs, ev.planned, ev.net_planned[k], ev.net_conf[k], choice["weight"])
-        label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
-        sets.per_seed.append(ev.score(render_targets(ev, fit(sc)), label, ev.scored, seed=seed, views=len(sc)))
-        records.append({**sets.per_seed[-1].to_json(), "selection": choice})
-    entry[NETWORK_WEIGHTED] = {**sets.to_json(), "per_seed": records}
-
-
-def densification(ev: SceneEval, reconstructors: dict[str, Callable[[Scene], Renderer]] | None) -> None:
-    """Each reconstructor from N views vs N + synthesized views vs the oracle; a failure is recorded."""
-    recs = reconstructors if reconstructors is not None else {}
-    dens: dict = {}
-    ev.res["densification"] = dens
-    for rname in ev.cfg.reconstructors if reconstructors is None else list(recs):
-        t0 = time.perf_counter()
-        entry = dens[rname] = {}
-        try:
-            reconstruct(ev, rname, recs[rname] if rname in recs else reconstructor(rname, ev.cfg), entry)
-        except Exception as e:
-            log.warning("%s: reconstructor %s failed: %s", ev.name, rname, e)
-            entry.update(status="failed", error=f"{type(e).__name__}: {e}")
-        entry["seconds"] = time.perf_counter() - t0
-        ev.partial()
 
 
 def evaluate_scene(
