@@ -1,6 +1,6 @@
 """Held-out quality of the classical baselines and the built-in MPI renderer on a dense capture.
 
-Protocol (issue 5): N evenly spaced frames (np.round(np.linspace(0, n-1, N))) are the only inputs; the
+Protocol: N evenly spaced frames (np.round(np.linspace(0, n-1, N))) are the only inputs; the
 targets are the real frames nearest the midpoints between consecutive inputs (N - 1 of them). Target
 images are loaded only to score the outputs, after synthesis; synthesizers see only their poses.
 

@@ -1,4 +1,4 @@
-"""Bad input through the CLI, for every command that reads images, poses or runs (issue 6).
+"""Bad input through the CLI, for every command that reads images, poses or runs.
 
 Every failing case checks the same contract: a non-zero exit, exactly one line
 ``sparself <cmd>: error: ...`` that names the file and the problem, no traceback (without ``--debug``),
@@ -184,7 +184,7 @@ def check_failure(capsys, tmp_path: Path, cmd: str, inp: Path, *needles: str, ca
     before = listing(res)
     code, stdout, err = run(capsys, *argv_for(cmd, inp, out, "-q"))
     if cmd == "evaluate":
-        # evaluate reports a failed scene in its report and goes on with the others (issue 5); with no
+        # evaluate reports a failed scene in its report and goes on with the others; with no
         # scene left it exits non-zero and the logged error names the file and the problem
         assert code != 0 and "Traceback" not in err, err
         lines = [ln for ln in err.splitlines() if "evaluation failed" in ln]
@@ -943,7 +943,7 @@ def test_synthesize_output_folder(trained, tmp_path, capsys):
     synth_failure(
         capsys, trained, tmp_path, "/proc", out=Path("/proc/sparself_out"), case="read-only output [synthesize]"
     )
-    # --overwrite replaces only a folder sparself wrote (issue 14)
+    # --overwrite replaces only a folder sparself wrote
     synth_failure(
         capsys,
         trained,

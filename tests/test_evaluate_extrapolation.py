@@ -1,4 +1,4 @@
-"""Extrapolation scored apart (issue 15): real frames kept beyond the end inputs of a dense capture, held-out
+"""Extrapolation scored apart: real frames kept beyond the end inputs of a dense capture, held-out
 frames there scored as "extrapolated", planned extrapolations snapped to real photos there."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The weighted row's weight choice (issue 15): its validation fits train on planned views synthesized
+"""The weighted row's weight choice: its validation fits train on planned views synthesized
 again without the held-back input views; the final weighted fits keep the views synthesized from all inputs."""
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""What the user sees (issue 14, sections 3, 5 and 7), through the CLI on tiny scenes.
+"""What the user sees, through the CLI on tiny scenes.
 
-Section 3: inputs that belong together must match (plan vs run and scene, resume vs the run's scene).
-Section 5: the last tracebacks and cryptic messages, each one line naming the file and the problem.
-Section 7: what the user sees when things go right (summaries, progress, repeated messages, info).
+Inputs that belong together must match (plan vs run and scene, resume vs the run's scene).
+The last tracebacks and cryptic messages, each one line naming the file and the problem.
+What the user sees when things go right (summaries, progress, repeated messages, info).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def _edit_first_image_line(images_txt: Path, field: int, value: str) -> None:
     images_txt.write_text("\n".join(lines) + "\n")
 
 
-# ---- section 5: remaining tracebacks and cryptic messages ------------------------------------------------------
+# ---- remaining tracebacks and cryptic messages ---------------------------------------------------------------
 
 
 @pytest.mark.parametrize("cmd", ["info", "plan"])
@@ -152,7 +152,7 @@ def test_poses_does_not_claim_to_downscale_small_photos(tmp_path, capsys):
     assert "downscaled from 96 to 64 px" in err
 
 
-# ---- section 3: inputs that belong together must match ----------------------------------------------------------
+# ---- inputs that belong together must match -------------------------------------------------------------------
 
 
 def _moved_scene(n: int = 6, dx: float = 0.1) -> "object":
@@ -314,7 +314,7 @@ def test_resume_on_another_scene_is_refused(run6, tmp_path, capsys, other, needl
     assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before
 
 
-# ---- section 7: what the user sees when things go right ---------------------------------------------------------
+# ---- what the user sees when things go right ------------------------------------------------------------------
 
 SUMMARY = r" in \d+\.\d s$"
 

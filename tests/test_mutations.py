@@ -1,4 +1,4 @@
-"""Issue 14, section 2: a seeded property test. Hundreds of mutations of plan and pose files (names,
+"""Hostile pose and plan files, as a seeded property test. Hundreds of mutations of plan and pose files (names,
 numbers, types, missing keys, broken text) go through the CLI in-process; each must end with exit 0 or
 exactly one ``error:`` line, never a traceback, and must not create or change any file outside --out
 (the whole surrounding tree is compared before and after every call)."""

@@ -1,4 +1,4 @@
-"""Issue 14, section 2: names from input files never lead outside --out, nor onto one another.
+"""Names from input files never lead outside --out, nor onto one another.
 
 Explicit cases through the CLI for each reader and the plan loader; the seeded property test over
 hundreds of mutated plan and pose files is in test_mutations.py."""

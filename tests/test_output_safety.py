@@ -1,4 +1,4 @@
-"""Issue 14, section 1: no command ever writes into or over one of its inputs, and --overwrite replaces
+"""No command ever writes into or over one of its inputs, and --overwrite replaces
 only a folder sparself wrote (or an empty one).
 
 Every case runs through the CLI with --overwrite (the dangerous flag) and checks: exactly one error line

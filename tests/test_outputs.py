@@ -56,7 +56,7 @@ def test_atomic_file(tmp_path):
     assert p.read_text() == "{}" and len(list(tmp_path.iterdir())) == 1
 
 
-# ---- issue 14, section 4: outputs that cannot be renamed or deleted ------------------------------------
+# ---- outputs that cannot be renamed or deleted ------------------------------------
 
 import errno  # noqa: E402
 import os  # noqa: E402

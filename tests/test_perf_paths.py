@@ -1,4 +1,4 @@
-"""The fast paths of issue 7 give the same results as the plain ones, and the GPU options (mixed precision,
+"""The fast paths give the same results as the plain ones, and the GPU options (mixed precision,
 torch.compile, channels-last) are wired and run on CPU. No timings here: those are in benchmarks/run.py."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Photos as they come off phones and cameras (issue 14, section 6): hidden AppleDouble files, HEIC photos,
+"""Photos as they come off phones and cameras: hidden AppleDouble files, HEIC photos,
 a card's DCIM sub-folders, CMYK / grayscale / 16-bit / EXIF-rotated photos said once with a count, upright
 RGB copies in a written scene, and a recovered camera that cannot be right."""
 

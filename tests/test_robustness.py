@@ -1,4 +1,4 @@
-"""Interrupted and repeated runs (issue 6): a killed training run resumes to the same weights, the same
+"""Interrupted and repeated runs: a killed training run resumes to the same weights, the same
 command with the same seed gives byte-identical images, an interrupted command leaves nothing behind,
 and inputs are never modified. All on CPU, through the CLI, on a 6-view 32x24 scene."""
 

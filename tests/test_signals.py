@@ -1,4 +1,4 @@
-"""Issue 14, section 4: SIGTERM (kill, timeout, container stop) and SIGHUP (closed terminal) behave like
+"""SIGTERM (kill, timeout, container stop) and SIGHUP (closed terminal) behave like
 Ctrl-C: temporary output removed, checkpoint kept, exit 128 + signal, one line saying how to go on."""
 
 from __future__ import annotations

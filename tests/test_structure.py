@@ -1,5 +1,6 @@
-"""The code's shape (issue 11): short functions, no private helpers across modules, one decoder signature,
-and one source of truth per option (the command line is built from the dataclasses)."""
+"""The code's shape: layer folders with imports running only downward and no cycles, short functions, no private
+helpers across modules, one decoder signature, and one source of truth per option (the command line is built from
+the dataclasses)."""
 
 from __future__ import annotations
 

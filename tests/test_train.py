@@ -51,7 +51,7 @@ def test_target_pixels_never_reach_its_own_prediction(tmp_path, decoder, tiny_cf
 
 def test_holdout_frames_are_never_opened(tmp_path, tiny_cfg):
     scene = plane_scene()
-    (tmp_path / "images").mkdir()  # an image folder of its own: a run may not be written inside one (issue 14)
+    (tmp_path / "images").mkdir()  # an image folder of its own: a run may not be written inside one
     broken = tmp_path / "images" / "held_out.png"
     broken.write_bytes(b"")  # opening it would raise InputError
     scene.frames[4] = dataclasses.replace(scene.frames[4], image=None, path=broken)

@@ -1,4 +1,4 @@
-"""Classical view-synthesis baselines, all with the team synthesizer call
+"""Classical view-synthesis baselines, all with the synthesizer call the network shares
 
     fn(scene: Scene, targets: list[Frame], **cfg) -> np.ndarray (T, H, W, 3) float32 in [0, 1]
 

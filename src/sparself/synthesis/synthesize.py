@@ -102,7 +102,7 @@ def synthesize_with_confidence(run_or_model, scene: Scene, targets: list[Frame])
 
 
 def synthesizer(run_or_model):
-    """The team synthesizer call ``f(scene, targets) -> (T, H, W, 3)`` bound to a trained run."""
+    """The synthesizer call every method shares, ``f(scene, targets) -> (T, H, W, 3)``, bound to a trained run."""
     run = _as_run(run_or_model)
     return lambda scene, targets, **_: synthesize(run, scene, targets)
 
