@@ -417,10 +417,13 @@ def test_a_dense_scene_written_again_keeps_one_rank_prefix(written, tmp_path):
 def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, small_scene, tiny_cfg):
     """The pipeline end to end on the small plane scene (7 views, 40 x 28): the user's held-out view is
     val/test, synthesized views are train only, sparself.json names the run and plan beside the scene."""
+    from sparself.evaluation.selfcheck import SelfCheckConfig
     from sparself.pipeline import DensifyConfig, densify
     from sparself.synthesis.plan import PlanConfig
 
-    cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2))
+    cfg = DensifyConfig(
+        train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2), check=SelfCheckConfig(recon="none")
+    )
     densify(small_scene, tmp_path / "out", cfg)
     folder = tmp_path / "out" / "scene"
     sj = json.loads((folder / "sparself.json").read_text())

@@ -20,7 +20,18 @@ from sparself.cli import main
 from test_bad_input import listing, one_error, run, write_posed
 
 TRAIN = ("--epochs", "1", "--size", "32", "--crop", "16", "--device", "cpu", "--batch-size", "6")
-DENSIFY = ("--epochs", "1", "--crop", "16", "--device", "cpu", "--batch-size", "6")  # trains at the scene's size
+DENSIFY = (
+    "--epochs",
+    "1",
+    "--crop",
+    "16",
+    "--device",
+    "cpu",
+    "--batch-size",
+    "6",
+    "--recon",
+    "none",
+)  # trains at the scene's size
 
 
 def _colmap_text(folder: Path, n: int = 6) -> Path:

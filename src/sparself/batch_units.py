@@ -16,6 +16,7 @@ from sparself.capture.io import read_scene
 from sparself.core.errors import InputError, OutputError, SparselfError
 from sparself.core.outputs import atomic_file
 from sparself.evaluation.evaluate import evaluate
+from sparself.evaluation.selfcheck import SelfCheckConfig
 from sparself.pipeline import densify
 from sparself.synthesis.plan import PlanConfig
 
@@ -138,10 +139,15 @@ def make_units(kind: str, captures: list[Capture], base, out: Path, threads: int
 
 def densify_configs(base, options: dict) -> list[tuple[int, object]]:
     plan_keys = {f.name for f in fields(PlanConfig)}
-    train = replace(base.train, **{k: v for k, v in options.items() if k not in plan_keys and k != "out_size"})
+    check_keys = {f.name for f in fields(SelfCheckConfig)}
+    own = plan_keys | check_keys | {"out_size"}
+    train = replace(base.train, **{k: v for k, v in options.items() if k not in own})
     plan = replace(base.plan or PlanConfig(), **{k: v for k, v in options.items() if k in plan_keys})
     plan.validate()
-    cfg = replace(base, train=train, plan=plan, out_size=options.get("out_size", base.out_size), overwrite=True)
+    check = replace(base.check, **{k: v for k, v in options.items() if k in check_keys})
+    cfg = replace(
+        base, train=train, plan=plan, check=check, out_size=options.get("out_size", base.out_size), overwrite=True
+    )
     return [(train.seed, cfg)]
 
 

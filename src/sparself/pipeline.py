@@ -16,7 +16,9 @@ from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
 from sparself.core.options import option
 from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
+from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, at_check_size, check_fit, self_check, weakest_plan
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
+from sparself.synthesis.run import Run
 from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import train
 from sparself.synthesis.train_config import TrainConfig
@@ -27,10 +29,12 @@ log = logging.getLogger(__name__)
 @dataclass
 class DensifyConfig:
     """Options of the whole pipeline. out_size: long side in px of the written scene (None = as read);
-    training runs at that size too (``train.size`` is replaced by it)."""
+    training runs at that size too (``train.size`` is replaced by it). check: the reconstruction the views are
+    planned for and checked against (``check.recon="none"``: the paper's plan, every view written)."""
 
     train: TrainConfig = field(default_factory=TrainConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
+    check: SelfCheckConfig = field(default_factory=SelfCheckConfig)
     sfm: SfmConfig = field(default_factory=SfmConfig)
     out_size: int | None = None
     overwrite: bool = False
@@ -81,26 +85,41 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
-        syn = synthesize_with_confidence(run, scene, targets)
-        # points only for the written scene: training and synthesis are the same with or without them
+        # points for the written scene (training and synthesis are the same with or without them) and the fits
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        dense = densify_scene(written, targets, syn.images, syn.confidence)
-        sio.write_scene_into(
-            dense,
-            tmp / "scene",
-            dense=sio.DenseInfo("../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled),
-        )
+        planned, views = _views(run, scene, written, targets, cfg, tcfg.holdout)
+        dense = densify_scene(written, views.frames, views.images, views.confidence)
+        info = sio.DenseInfo("../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled, views.record)
+        sio.write_scene_into(dense, tmp / "scene", dense=info)
         # the plan and a camera plot beside the scene, so users see where the new views are
-        save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
+        save_plan(tmp / "plan.json", planned, scene=scene, cfg=cfg.plan)
         plot_cameras(
             scene,
-            planned=targets,
+            planned=views.frames,
             path=tmp / "cameras.png",
-            title=f"{len(scene)} input views (blue) + {len(targets)} synthesized (orange)",
+            title=f"{len(scene)} input views (blue) + {len(views.frames)} synthesized (orange)",
         )
         if not cfg.keep_run:
             shutil.rmtree(tmp / "run")
     return dense
+
+
+def _views(run: Run, scene: Scene, written: Scene, targets: list, cfg: DensifyConfig, holdout) -> tuple[list, Checked]:
+    """(the planned frames, the views to write): every view of the paper's plan with ``check.recon`` none;
+    else planned where the reconstruction is weak (``check.plan_mode`` weak) and kept only where they pay
+    (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout)."""
+    check = cfg.check
+    if check.recon == "none":
+        if check.plan_mode != "paper":
+            log.info("--recon none: the paper's plan (planning where a reconstruction is weak needs one)")
+        syn = synthesize_with_confidence(run, scene, targets)
+        return targets, Checked(targets, syn.images, syn.confidence, None)
+    inputs = written.without(holdout)
+    if check.plan_mode == "weak":
+        targets = weakest_plan(at_check_size(inputs, check), cfg.plan, check_fit(check))
+    final = synthesize_with_confidence(run, scene, targets)
+    synth = lambda sc, tg, **_: synthesize_with_confidence(run, sc, tg)  # noqa: E731
+    return targets, self_check(inputs, targets, synth, final, check, check.plan_mode)
 
 
 def _with_points(scene: Scene, photos: Scene, holdout: tuple[str, ...]) -> Scene:

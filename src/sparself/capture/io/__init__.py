@@ -176,7 +176,7 @@ def write_scene_into(
         raise ValueError(f"images must be 'copy', 'link' or 'none', got {images!r}")
     check_names([f.name for f in scene.frames], scene.source or "scene", what="frame name", subfolders=True)
     split, sources, dense = None, [], dense or DenseInfo()
-    if any(f.synthetic for f in scene.frames):
+    if any(f.synthetic for f in scene.frames) or dense.selfcheck is not None:
         scene, split, sources = _dense.layout(scene, dense)
     new_frames = []
     for i, f in enumerate(scene.frames):
