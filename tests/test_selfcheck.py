@@ -182,3 +182,10 @@ def test_the_self_check_record_round_trips_through_json():
     )
     assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
     assert rec.kept == ("n",)
+
+
+def test_a_batch_manifest_sets_the_self_check_per_capture():
+    from sparself.batch_units import densify_configs
+
+    [(_, cfg)] = densify_configs(pipeline.DensifyConfig(), {"recon": "mpi", "check_steps": 50, "n_mid": 3, "epochs": 2})
+    assert (cfg.check.recon, cfg.check.check_steps, cfg.plan.n_mid, cfg.train.epochs) == ("mpi", 50, 3, 2)
