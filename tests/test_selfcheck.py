@@ -189,3 +189,12 @@ def test_a_batch_manifest_sets_the_self_check_per_capture():
 
     [(_, cfg)] = densify_configs(pipeline.DensifyConfig(), {"recon": "mpi", "check_steps": 50, "n_mid": 3, "epochs": 2})
     assert (cfg.check.recon, cfg.check.check_steps, cfg.plan.n_mid, cfg.train.epochs) == ("mpi", 50, 3, 2)
+
+
+def test_a_bad_self_check_setting_is_one_line_before_anything_runs(tmp_path, capsys):
+    from sparself import cli
+
+    write_scene(small_plane_scene(), tmp_path / "cap")
+    assert cli.main(["densify", str(tmp_path / "cap"), "--out", str(tmp_path / "o"), "--check-weights", "0"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "check_weights" in err and "\n" not in err and not (tmp_path / "o").exists()

@@ -69,6 +69,7 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     ``out/cameras.png`` and, if ``keep_run``, the trained run in ``out/run/``. Returns the densified scene.
     """
     cfg = cfg or DensifyConfig()
+    cfg.check.validate()
     out = Path(out)
     given = isinstance(photos_or_scene, Scene)
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])

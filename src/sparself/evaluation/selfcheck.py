@@ -29,6 +29,7 @@ import torch
 from sparself.capture.images import resize_image
 from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
+from sparself.core.errors import ConfigError
 from sparself.core.options import option
 from sparself.evaluation.instruments import SynthFn, images_and_confidence
 from sparself.evaluation.weighting import (
@@ -81,6 +82,20 @@ class SelfCheckConfig:
     )
     agree_weight: float = option(0.3, "the factor the confidence of such agreeing pixels is multiplied by")
     check_seed: int = option(0, "seed of the self-check's fits")
+
+    def validate(self) -> None:
+        if self.recon not in RECONS or self.plan_mode not in PLANS:
+            raise ConfigError(f"recon must be one of {', '.join(RECONS)} and plan one of {', '.join(PLANS)}")
+        if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
+            raise ConfigError(
+                f"check_size must be >= 8 and check_steps >= 1, got {self.check_size}, {self.check_steps}"
+            )
+        if not self.check_weights or min(self.check_weights) <= 0:
+            raise ConfigError(f"check_weights must be one or more weights > 0, got {self.check_weights}")
+        if self.agree_within < 0 or not 0 <= self.agree_weight <= 1:
+            raise ConfigError(
+                f"agree_within must be >= 0 and agree_weight in [0, 1], got {self.agree_within}, {self.agree_weight}"
+            )
 
 
 @dataclass
