@@ -2,7 +2,8 @@
 #   make demo   densify the bundled sample capture (samples/bird: photos -> poses -> plan -> train
 #               -> synthesize) -> demo_out/
 #   make evaluate  held-out evaluation of the sample, quick settings -> eval_out/
-#   make test   run the test suite: .venv/bin/python -m pytest -q tests
+#   make lint   formatting, lint and type check: ruff format --check, ruff check, mypy (pyproject.toml)
+#   make test   run the test suite: .venv/bin/python -m pytest tests
 #   make bench  speed and memory table: .venv/bin/python benchmarks/run.py
 #   make clean  remove demo output and caches (keeps .venv; `make distclean` removes it too)
 
@@ -24,7 +25,7 @@ DEMO_SIZE   ?= 240
 DEMO_EPOCHS ?= 30
 EVAL_OUT    ?= eval_out
 
-.PHONY: demo evaluate test bench clean distclean install
+.PHONY: demo evaluate lint test bench clean distclean install
 
 install: $(STAMP)
 
@@ -45,8 +46,13 @@ demo: $(STAMP)
 evaluate: $(STAMP)
 	$(VENV)/bin/sparself evaluate $(DEMO_SCENE) --out $(EVAL_OUT) --quick --overwrite
 
+lint: $(STAMP)
+	$(VENV)/bin/ruff format --check src tests benchmarks
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/mypy
+
 test: $(STAMP)
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest tests
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py

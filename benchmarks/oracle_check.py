@@ -48,8 +48,8 @@ def densify_check(scene, rname: str, kw: dict, size: int, synth: str) -> dict:
     """``sparself evaluate``'s densification on one capture with the ``synth`` baseline in the network's
     place (cheap, no training): {"N", "N+synth", "oracle", "instrument", "share"} for one reconstructor."""
     from sparself.evaluation.config import EvalConfig
-    from sparself.evaluation.results import NETWORK
     from sparself.evaluation.protocol import evaluate_scene
+    from sparself.evaluation.results import NETWORK
     from sparself.synthesis.baselines import BASELINES
 
     fn = BASELINES[synth]

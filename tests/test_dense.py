@@ -234,8 +234,8 @@ def test_real_sfm_tracks_are_kept_and_synthesized_views_get_projected_ones(tmp_p
     import pycolmap
 
     src = _model_with_tracks(tmp_path / "src", offset=0.25)
-    assert len(src.meta["observations"]) == 9
-    n_src = {n: len(o.point) for n, o in src.meta["observations"].items()}
+    assert len(src.observations) == 9
+    n_src = {n: len(o.point) for n, o in src.observations.items()}
     mid = interpolate_pose(src.frames[3].pose, src.frames[4].pose, 0.5)
     dense = replace(
         src,
@@ -397,7 +397,7 @@ def test_transforms_json_scene_brings_its_point_cloud_and_gets_tracks(tmp_path, 
     back = read_nerfstudio(tmp_path / "src")
     np.testing.assert_allclose(back.points, scene.points, atol=1e-6)
     if binary:
-        assert np.all(back.meta["point_colors"][:, 0] == 200)
+        assert np.all(back.point_colors[:, 0] == 200)
     dense = replace(back, frames=sorted(back.frames + [f for f in scene.frames if f.synthetic], key=lambda f: f.index))
     write_scene(dense, tmp_path / "out", dense=DenseInfo(downscale=False))
     rec = pycolmap.Reconstruction(str(tmp_path / "out" / "sparse" / "0"))

@@ -62,7 +62,7 @@ def _densify(src, out, tiny_cfg) -> None:
 
 def _reprojection_errors(scene, f) -> np.ndarray:
     """Frame f's observations against the projection of their points at its pose (px)."""
-    obs = scene.meta["observations"][f.name]
+    obs = scene.observations[f.name]
     X = scene.points[obs.point] @ f.pose.R.T + f.pose.tvec
     uv = X @ scene.cameras[f.camera_id].K.T
     return np.linalg.norm(uv[:, :2] / uv[:, 2:] - obs.xy, axis=1)
@@ -83,12 +83,12 @@ def test_a_capture_without_points_is_written_with_points_from_its_real_photos(
     n = len(back.points)
     assert n >= MIN_POINTS and f"triangulated {n} points from 5 photos" in caplog.text
     assert np.median(np.abs(back.points[:, 2] - DEPTH)) < 0.01 * DEPTH
-    colors = back.meta["point_colors"] / 255.0
+    colors = back.point_colors / 255.0
     assert np.median(np.abs(colors - texture(back.points[:, 0], back.points[:, 1]))) < 0.05
     assert sum(f.synthetic for f in back.frames) == 3 and len(back) == 9
     # tracks: the training photos keep the keypoints the points were triangulated from (each point in at
     # least 2 of them, near its projection); the others (synthesized, held out) observe the points' projections
-    obs = back.meta["observations"]
+    obs = back.observations
     used = [f for f in back.frames if not f.synthetic and f.name != _written_name(folder, "p05.png")]
     assert len(used) == 5 and all(len(obs[f.name].point) for f in back.frames)
     seen = np.bincount(np.concatenate([obs[f.name].point for f in used]), minlength=n)
@@ -100,7 +100,7 @@ def test_a_capture_without_points_is_written_with_points_from_its_real_photos(
     assert json.loads((folder / "transforms.json").read_text())["ply_file_path"] == "sparse_pc.ply"
     ns = read_nerfstudio(folder / "transforms.json")
     np.testing.assert_allclose(ns.points, back.points, atol=1e-5)
-    np.testing.assert_array_equal(ns.meta["point_colors"], back.meta["point_colors"])
+    np.testing.assert_array_equal(ns.point_colors, back.point_colors)
 
 
 def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeypatch):
@@ -111,7 +111,7 @@ def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeyp
     )
     colors = rng.integers(0, 256, (MIN_POINTS, 3), dtype=np.uint8)
     cap = read_scene(tmp_path / "capture")
-    cap.points, cap.meta["point_colors"] = pts, colors
+    cap.points, cap.point_colors = pts, colors
     write_scene(cap, tmp_path / "with_points", ("colmap",))
     calls = _spy(monkeypatch)
     _densify(tmp_path / "with_points", tmp_path / "out", tiny_cfg)
@@ -119,7 +119,7 @@ def test_a_capture_with_points_keeps_exactly_its_own(tmp_path, tiny_cfg, monkeyp
     assert calls == []
     assert len(back.points) >= MIN_POINTS  # theirs, plus one on the axis of a view that sees none
     np.testing.assert_array_equal(back.points[:MIN_POINTS], pts)
-    np.testing.assert_array_equal(back.meta["point_colors"][:MIN_POINTS], colors)
+    np.testing.assert_array_equal(back.point_colors[:MIN_POINTS], colors)
 
 
 def test_synthesize_gives_the_run_scene_points_from_its_training_photos(tmp_path, tiny_cfg, monkeypatch):
@@ -150,10 +150,10 @@ def test_too_few_points_leave_the_scene_as_it_was(caplog):
 
 def test_few_own_points_are_replaced_by_triangulated_ones():
     scene = camera_line([0.1 * i for i in range(5)], SIZE, FOCAL, plane_image())
-    scene.points, scene.meta["point_colors"] = np.zeros((3, 3)), np.zeros((3, 3), np.uint8)
+    scene.points, scene.point_colors = np.zeros((3, 3)), np.zeros((3, 3), np.uint8)
     out = ensure_points(scene)
-    assert len(out.points) >= MIN_POINTS and out.meta["point_colors"].shape == out.points.shape
-    assert out.meta["point_colors"].dtype == np.uint8 and len(scene.points) == 3  # the input is not modified
+    assert len(out.points) >= MIN_POINTS and out.point_colors.shape == out.points.shape
+    assert out.point_colors.dtype == np.uint8 and len(scene.points) == 3  # the input is not modified
 
 
 def test_no_triangulate_reaches_densify_and_synthesize(monkeypatch):

@@ -107,6 +107,21 @@ def test_quaternion_matrix_round_trip():
         assert same_rotation(rotmat_to_quat(quat_to_rotmat(q)), q, tol=1e-9)
 
 
+def test_quat_to_rotmat_of_a_torch_batch_equals_numpy_and_is_differentiable():
+    import torch
+
+    qs = random_quats(7, 3) * 2.5  # any norm
+    R_np = quat_to_rotmat(qs)
+    assert R_np.shape == (7, 3, 3)
+    np.testing.assert_allclose(R_np[2], quat_to_rotmat(qs[2]), atol=1e-15)
+    q = torch.tensor(qs, requires_grad=True)
+    R = quat_to_rotmat(q)
+    assert isinstance(R, torch.Tensor) and R.shape == (7, 3, 3)
+    np.testing.assert_allclose(R.detach().numpy(), R_np, atol=1e-12)
+    R[:, 0, 1].sum().backward()  # the 3DGS fit moves rotations through this gradient
+    assert q.grad is not None and torch.isfinite(q.grad).all() and q.grad.abs().sum() > 0
+
+
 def test_rotation_angle_matches_axis_angle():
     R = quat_to_rotmat(axis_angle_quat([0, 0, 1], np.radians(30)))
     assert rotation_angle_deg(np.eye(3), R) == pytest.approx(30.0)

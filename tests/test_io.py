@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -236,6 +237,31 @@ def test_llff_nan_names_file(tmp_path):
     np.save(npy, a)
     with pytest.raises(InputError, match=r"poses_bounds\.npy.*NaN"):
         read_scene(tmp_path)
+
+
+def test_llff_complex_values_are_read_only_when_real(tmp_path):
+    npy = _llff_folder(tmp_path)
+    real = [f.pose.tvec for f in read_llff(npy).frames]
+    a = np.load(npy).astype(np.complex128)
+    np.save(npy, a)  # imaginary parts all zero: the same poses
+    assert all(np.array_equal(f.pose.tvec, t) for f, t in zip(read_llff(npy).frames, real, strict=True))
+    a[1, 4] += 0.5j
+    np.save(npy, a)
+    with pytest.raises(InputError, match=r"poses_bounds\.npy: expected real numbers, got complex"):
+        read_scene(tmp_path)
+
+
+def test_llff_huge_or_tiny_values_fail_the_checks_without_numpy_warnings(tmp_path):
+    npy = _llff_folder(tmp_path)
+    a = np.load(npy)
+    for pos, value, problem in ((0, 1e308, "not orthonormal"), (4, 1e-320, "aspect differs")):
+        b = a.copy()
+        b[1, pos] = value  # a rotation entry; the image height
+        np.save(npy, b)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(InputError, match=problem):
+                read_scene(tmp_path)
 
 
 @pytest.mark.parametrize("shape", [(5, 15), (5,), (5, 3, 5)])

@@ -77,7 +77,7 @@ READS = {
 def test_confidence_comes_back_in_every_format(dense, fmt):
     written, folder = dense
     scene = READS[fmt](folder)
-    assert scene.meta["format"] == fmt
+    assert scene.source_format == fmt
     conf = {f.name: f.confidence for f in written.frames}
     assert sorted(f.name for f in scene.frames) == sorted(conf)
     for i, f in enumerate(scene.frames):

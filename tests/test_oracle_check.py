@@ -5,9 +5,9 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from sparself.evaluation.results import NETWORK
 from sparself.evaluation.protocol import oracle_share
 from sparself.evaluation.report import write_report
+from sparself.evaluation.results import NETWORK
 
 
 def _entry(base: float, net: float, oracle: float) -> dict:

@@ -256,7 +256,7 @@ def _evaluate_report(units: list[Unit], results: list[UnitResult], tmp: Path, ma
         scene = merge_seeds([(u.seed, res["scenes"][0], u.out.relative_to(u.logs.parent)) for u, res in ok])
         scene["notes"] = scene.get("notes", []) + [f"{b} (failed)" for b in bad]
         data["scenes"].append(scene)
-    seeds = [u.config.first_seed for u in units]
+    seeds = [u.seed for u in units]  # each evaluate unit runs its config's first_seed
     data["settings"].update(seeds=len(set(seeds)), batch_manifest=str(manifest))
     data["settings"].pop("first_seed", None)
     data["batch"] = {

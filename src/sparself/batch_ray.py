@@ -88,7 +88,8 @@ def run_ray(ray, units: list[Unit], cfg: BatchConfig, bar: Progress) -> list[Uni
         cfg.cpus_per_task,
         f" and {gpus:g} GPU" if gpus else "",
     )
-    pending, running, results = list(units), {}, []
+    pending, results = list(units), []
+    running: dict[object, Unit] = {}  # Ray task reference -> its unit
     try:
         while pending or running:
             while pending and len(running) < slots:

@@ -15,9 +15,10 @@ import torch
 from sparself.capture.io import read_scene
 from sparself.core.errors import InputError, OutputError, SparselfError
 from sparself.core.outputs import atomic_file
+from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.evaluate import evaluate
 from sparself.evaluation.selfcheck import SelfCheckConfig
-from sparself.pipeline import densify
+from sparself.pipeline import DensifyConfig, densify
 from sparself.synthesis.plan import PlanConfig
 
 KINDS = ("densify", "evaluate")
@@ -74,7 +75,7 @@ class Unit:
     seed: int
     out: Path
     logs: Path
-    config: object
+    config: DensifyConfig | EvalConfig
     threads: int = 1
 
     @property
@@ -116,6 +117,7 @@ def make_units(kind: str, captures: list[Capture], base, out: Path, threads: int
     """The units of a batch: one per capture (densify) or per capture and seed (evaluate)."""
     units = []
     for c in captures:
+        cfgs: list[tuple[int, DensifyConfig]] | list[tuple[int, EvalConfig]]
         try:
             cfgs = densify_configs(base, c.options) if kind == "densify" else evaluate_configs(base, c.options)
         except (TypeError, ValueError) as e:
@@ -137,7 +139,7 @@ def make_units(kind: str, captures: list[Capture], base, out: Path, threads: int
     return units
 
 
-def densify_configs(base, options: dict) -> list[tuple[int, object]]:
+def densify_configs(base: DensifyConfig, options: dict) -> list[tuple[int, DensifyConfig]]:
     plan_keys = {f.name for f in fields(PlanConfig)}
     check_keys = {f.name for f in fields(SelfCheckConfig)}
     own = plan_keys | check_keys | {"out_size"}
@@ -151,15 +153,15 @@ def densify_configs(base, options: dict) -> list[tuple[int, object]]:
     return [(train.seed, cfg)]
 
 
-def evaluate_configs(base, options: dict) -> list[tuple[int, object]]:
+def evaluate_configs(base: EvalConfig, options: dict) -> list[tuple[int, EvalConfig]]:
     """One config per seed; the first seed's unit also runs the seed-independent parts (baselines, oracle)."""
     cfg = replace(base, **options, progress=False)
     cfg.validate()
     first = cfg.first_seed
     out = []
     for seed in range(first, first + cfg.seeds):
-        extra = {} if seed == first else dict(baselines=(), densify_baselines=(), oracle=False)
-        out.append((seed, replace(cfg, seeds=1, first_seed=seed, **extra)))
+        one = replace(cfg, seeds=1, first_seed=seed)
+        out.append((seed, one if seed == first else replace(one, baselines=(), densify_baselines=(), oracle=False)))
     return out
 
 
@@ -193,6 +195,7 @@ def run_unit(unit: Unit) -> UnitResult:
     try:
         res = (densify_unit if unit.kind == "densify" else evaluate_unit)(unit)
     except Exception as e:
+        assert handler.stream is not None  # a FileHandler opens its file at once
         handler.stream.write(traceback.format_exc())
         res = UnitResult(unit.capture, unit.seed, "failed", one_line(e))
     finally:
@@ -208,12 +211,14 @@ def run_unit(unit: Unit) -> UnitResult:
 
 
 def densify_unit(unit: Unit) -> UnitResult:
+    assert isinstance(unit.config, DensifyConfig)
     dense = densify(unit.source, unit.out, unit.config)
     n_syn = sum(bool(f.synthetic) for f in dense.frames)
     return UnitResult(unit.capture, unit.seed, "ok", views=len(dense.frames) - n_syn, synthesized=n_syn)
 
 
 def evaluate_unit(unit: Unit) -> UnitResult:
+    assert isinstance(unit.config, EvalConfig)
     scene = read_scene(unit.source)  # an unreadable capture fails here and writes nothing
     res = evaluate([scene], unit.out, unit.config, overwrite=True)
     s = res["scenes"][0]

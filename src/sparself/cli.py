@@ -333,7 +333,7 @@ _COMMANDS.append(_add_poses)
 # ---- train / synthesize / densify (the CNN–LSTM synthesizer) ----------------------------------------
 
 
-def _train_options(p: argparse.ArgumentParser, skip: tuple[str, ...] = ()) -> None:
+def _train_options(p: argparse._ActionsContainer, skip: tuple[str, ...] = ()) -> None:
     """Every TrainConfig field as an option (built from the dataclass: its defaults and help)."""
     from sparself.core.options import add_options
     from sparself.synthesis.train_config import TrainConfig

@@ -39,11 +39,10 @@ class DensifyConfig:
     out_size: int | None = None
     overwrite: bool = False
     keep_run: bool = True
-    downscaled: bool = option(True, "skip the images_2/4/8 copies beside images/ (large scenes)")
+    downscaled: bool = option(True, "write images_2/4/8 copies beside images/ (worth turning off for large scenes)")
     triangulate: bool = option(
         True,
-        "write a capture without sparse points without them (by default they are "
-        "triangulated from its real photos at their known poses)",
+        "triangulate sparse points for a capture that has none, from its real photos at their known poses",
     )
 
 

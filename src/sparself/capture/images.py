@@ -190,10 +190,10 @@ def load_image(path: Path, size: tuple[int, int] | None = None, *, warn: bool = 
     """
     path = nonempty_file(path)
     try:
-        with Image.open(path) as im:
-            im.load()
-            conv, rotated = conversion(im)
-            im = ImageOps.exif_transpose(im)
+        with Image.open(path) as f:
+            f.load()
+            conv, rotated = conversion(f)
+            im = ImageOps.exif_transpose(f)
             mode = im.mode
             if mode in SIXTEEN_BIT:
                 arr = np.asarray(im, dtype=np.float32)

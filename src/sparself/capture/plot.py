@@ -54,10 +54,10 @@ def _draw(
         for a, b in frustum_lines(c2w, cam, size):
             ax.plot(*zip(a, b), color=style["color"], linewidth=width)
         centers.append(c2w[:3, 3])
-    centers = np.array(centers)
-    ax.scatter(*centers.T, color=style["color"], s=8, label=f"{style['label']} ({len(frames)})")
+    xyz = np.array(centers)
+    ax.scatter(*xyz.T, color=style["color"], s=8, label=f"{style['label']} ({len(frames)})")
     if path_line:
-        ax.plot(*centers.T, color=style["color"], linewidth=0.5, alpha=0.4, linestyle="--")
+        ax.plot(*xyz.T, color=style["color"], linewidth=0.5, alpha=0.4, linestyle="--")
 
 
 def plot_cameras(
@@ -86,8 +86,8 @@ def plot_cameras(
         _draw(ax, list(planned or []), scene.cameras, size, _STYLE["planned"], path_line=False, width=1.4)
         _draw(ax, list(held_out or []), scene.cameras, size, _STYLE["held_out"], path_line=False, width=1.4)
         pts = [scene.centers()] + [np.array([f.pose.center for f in fs]) for fs in (planned, held_out) if fs]
-        pts = np.concatenate(pts)
-        lo, hi = pts.min(0) - size, pts.max(0) + size
+        every = np.concatenate(pts)
+        lo, hi = every.min(0) - size, every.max(0) + size
         mid, half = (lo + hi) / 2, max((hi - lo).max() / 2, 1e-6)
         ax.set_xlim(mid[0] - half, mid[0] + half)
         ax.set_ylim(mid[1] - half, mid[1] + half)

@@ -10,7 +10,7 @@ import logging
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Literal, Sequence
 
 import numpy as np
 
@@ -19,6 +19,8 @@ from sparself.core.errors import InputError
 from sparself.core.geometry import Pose, fov_deg, intrinsics_matrix
 
 log = logging.getLogger(__name__)
+
+SourceFormat = Literal["", "colmap", "llff", "nerfstudio", "middlebury", "sfm"]
 
 # fewer sparse points than this are not used: 3DGS starts from random points instead, and triangulation that
 # finds fewer leaves a scene without points
@@ -144,12 +146,29 @@ class Frame:
     weight: float = 1.0
 
 
+@dataclass(frozen=True)
+class Observations:
+    """One image's 2D-3D correspondences (its SfM track elements), kept in ``Scene.observations``
+    by frame name so that a written model keeps them.
+
+    point: (M,) indices into ``Scene.points``; xy: (M, 2) pixel positions (COLMAP convention) in an image
+    of ``size`` = (W, H), scaled when the camera was resized."""
+
+    point: np.ndarray
+    xy: np.ndarray
+    size: tuple[int, int]
+
+
 @dataclass
 class Scene:
     """A capture: cameras (by id), frames in capture order, optional depth bounds and sparse points.
 
     bounds: (near, far) scene depth range over all cameras, if known (LLFF stores it; COLMAP points give it).
-    points: (P, 3) sparse world points, if known.
+    points: (P, 3) sparse world points, if known; point_colors: their (P, 3) uint8 colours, if known.
+    observations: each frame's keypoints in the points' tracks, by frame name (what a written COLMAP model keeps).
+    source_format: the format the scene was read from ("" for a scene made in memory).
+    unregistered: photos of the capture without a pose (a COLMAP model's images that SfM did not register).
+    frame_bounds: per-view (near, far) by frame name, where the files give them (LLFF).
     """
 
     cameras: dict[int, Camera]
@@ -157,7 +176,11 @@ class Scene:
     bounds: tuple[float, float] | None = None
     points: np.ndarray | None = None
     source: Path | None = None
-    meta: dict = field(default_factory=dict)
+    point_colors: np.ndarray | None = None
+    observations: dict[str, Observations] = field(default_factory=dict)
+    source_format: SourceFormat = ""
+    unregistered: tuple[str, ...] = ()
+    frame_bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for f in self.frames:
@@ -260,9 +283,7 @@ class Scene:
             s = max_side / max(cam.width, cam.height)
             w, h = max(1, int(round(cam.width * s))), max(1, int(round(cam.height * s)))
             cams[cid] = cam.resized(w, h)
-        out = replace(self, cameras=cams)
-        out.meta = dict(self.meta, resized_from={cid: (c.width, c.height) for cid, c in self.cameras.items()})
-        return out
+        return replace(self, cameras=cams)
 
     def image_size(self, i: int = 0) -> tuple[int, int]:
         """(W, H) of frame i's camera."""

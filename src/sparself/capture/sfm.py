@@ -389,7 +389,7 @@ def _report(
         repair=repair,
         camera=cam_notes,
     )
-    scene.meta.update(format="sfm", unregistered=unregistered, sfm_report=report)
+    scene.source_format, scene.unregistered = "sfm", tuple(unregistered)
     log.log(
         logging.WARNING if unregistered or check.suspects or check.breaks else logging.INFO,
         "sfm: %s (%s; %.1f s)",
@@ -564,7 +564,6 @@ def poses_to_folder(
     inputs = [Input("photo folder", image_folder)]
     check_output_dir(Path(out), overwrite, inputs)
     scene, report = recover_poses(image_folder, cfg)
-    scene.meta.pop("sfm_report", None)
     with atomic_dir(Path(out), overwrite, inputs) as tmp:
         write_scene_into(scene, tmp, images=images)
         (tmp / "sfm_report.json").write_text(

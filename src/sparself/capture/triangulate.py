@@ -21,8 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sparself.capture.io.colmap import Observations
-from sparself.capture.scene import MIN_POINTS, Camera, Scene
+from sparself.capture.scene import MIN_POINTS, Camera, Observations, Scene
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +46,7 @@ class Triangulated:
     """points: (P, 3) float64 world points; colors: (P, 3) in [0, 1] (mean of the observed pixels).
     views: frames used; pairs: frame pairs matched; matches: matches passing the ratio and mutual tests;
     kept: pairwise triangulations passing the geometric checks; seconds: wall time; observations: each
-    frame's keypoints in the points' tracks, by frame name (``Scene.meta['observations']``: what a written
+    frame's keypoints in the points' tracks, by frame name (``Scene.observations``: what a written
     COLMAP model keeps as its tracks, instead of projecting every point into every view)."""
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -179,7 +178,7 @@ def _tracks(views: list[_View], nodes: np.ndarray, pts: np.ndarray) -> tuple[np.
         xy = views[v].xy[used[sel] - offsets[v]]
         h, w = views[v].image.shape[:2]
         colors[sel] = views[v].image[np.clip(xy[:, 1].astype(int), 0, h - 1), np.clip(xy[:, 0].astype(int), 0, w - 1)]
-    cols = np.stack([np.bincount(lab, colors[:, d], len(tracks)) for d in range(3)], 1)
+    cols: np.ndarray = np.stack([np.bincount(lab, colors[:, d], len(tracks)) for d in range(3)], 1)  # float sums
     cols /= np.bincount(lab, minlength=len(tracks))[:, None]
     keep = good[lab]
     members = np.stack([view_of, np.cumsum(good)[lab] - 1, used - offsets[view_of]], 1)[keep]
@@ -231,7 +230,8 @@ def triangulate(scene: Scene, config: TriangulateConfig | None = None) -> Triang
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one thread: the same matches every run
     try:
-        sift = cv2.SIFT_create(nfeatures=cfg.features)
+        # cv2's type stubs lack this function
+        sift = cv2.SIFT_create(nfeatures=cfg.features)  # type: ignore[attr-defined]
         views = [_view(scene, i, cfg, sift) for i in idx]
         pairs = _pairs(np.stack([v.center for v in views]), cfg.neighbours)
         out.pairs = len(pairs)
@@ -248,10 +248,10 @@ def triangulate(scene: Scene, config: TriangulateConfig | None = None) -> Triang
 
 
 def with_points(scene: Scene, tri: Triangulated) -> Scene:
-    """``scene`` with the triangulated points, their colours (uint8 ``meta['point_colors']``, as the
-    COLMAP and PLY writers read them) and tracks (``meta['observations']``), replacing the scene's own."""
-    meta = dict(scene.meta, point_colors=np.round(tri.colors * 255).astype(np.uint8), observations=tri.observations)
-    return replace(scene, points=tri.points, meta=meta)
+    """``scene`` with the triangulated points, their colours (uint8 ``point_colors``, as the
+    COLMAP and PLY writers read them) and tracks (``observations``), replacing the scene's own."""
+    colors = np.round(tri.colors * 255).astype(np.uint8)
+    return replace(scene, points=tri.points, point_colors=colors, observations=dict(tri.observations))
 
 
 def ensure_points(scene: Scene, photos: Scene | None = None, config: TriangulateConfig | None = None) -> Scene:

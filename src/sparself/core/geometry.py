@@ -5,14 +5,20 @@ Conventions (the one convention of the whole package, COLMAP's):
 - a pose is world-to-camera: ``x_cam = R @ x_world + t``; the camera looks along +z, x right, y down;
 - the camera centre is ``C = -R.T @ t``; ``c2w = [[R.T, C], [0, 1]]``.
 
-All functions are pure numpy over float64 arrays; leading batch dimensions are allowed where noted.
+All functions are pure numpy over float64 arrays (:func:`quat_to_rotmat` takes torch tensors too); leading batch
+dimensions are allowed where noted.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import torch
 
 _EPS = 1e-12
 
@@ -47,17 +53,34 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a (not necessarily unit) quaternion. q: (..., 4) -> (..., 3, 3)."""
+@overload
+def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor: ...
+@overload
+def quat_to_rotmat(q: np.ndarray) -> np.ndarray: ...
+def quat_to_rotmat(q):
+    """Rotation matrix of a (not necessarily unit) quaternion. q: (..., 4) -> (..., 3, 3). A torch tensor
+    gives a tensor, differentiable in q (the CPU 3DGS fits the Gaussians' rotations through it)."""
+    torch = sys.modules.get("torch")  # a tensor means torch is imported; never import it for numpy
+    if torch is not None and isinstance(q, torch.Tensor):
+        w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
+        return torch.stack(_rotmat_entries(w, x, y, z), -1).view(*q.shape[:-1], 3, 3)
     w, x, y, z = np.moveaxis(quat_normalize(q), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
+    return np.stack(_rotmat_entries(w, x, y, z), -1).reshape(np.shape(w) + (3, 3))
+
+
+def _rotmat_entries(w, x, y, z) -> list:
+    """The nine entries, row by row, of the rotation matrix of unit quaternion (w, x, y, z)."""
+    return [
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    ]
 
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:

@@ -48,7 +48,7 @@ class Repeats(logging.Filter):
         """One record per message said for more than one file: '02.png, 03.png (2 more): ...'."""
         out = []
         for rec, names in self.more.values():
-            if names:
+            if names and isinstance(rec.args, tuple):  # always: only records with tuple args are counted
                 who = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "") + f" ({len(names)} more)"
                 out.append(logging.makeLogRecord({**vars(rec), "msg": rec.msg % ((who,) + rec.args[1:]), "args": None}))
         return out

@@ -4,9 +4,10 @@
   ``float('inf')`` (the MSE is exactly zero, so there is no finite value to report).
 - :func:`ssim`: the standard SSIM of Wang et al. 2004 with an 11x11 Gaussian window (sigma 1.5),
   K1 = 0.01, K2 = 0.03, population (not sample) covariances, computed per channel and averaged over the
-  channels. Only window positions fully inside the image are used (the "valid" region), which is what
-  ``skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-  data_range=1, channel_axis=-1)`` reports (it filters with padding, then crops the 5-pixel border).
+  channels. It is kornia's ``kornia.metrics.ssim``, the one SSIM of the package (the training losses of the
+  network and of 3DGS use its map too), here over the "valid" region (window positions fully inside the
+  image) and without its eps, which is what ``skimage.metrics.structural_similarity(gaussian_weights=True,
+  sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1)`` reports.
 - :func:`lpips`: LPIPS v0.1 (AlexNet) of Zhang et al. 2018, implemented here in plain torch. It needs two
   weight files that cannot be downloaded here: torchvision's AlexNet ImageNet weights
   (``alexnet-owt-7be5be79.pth``) and LPIPS's linear layers (``alex.pth`` from the ``lpips`` package,
@@ -50,41 +51,26 @@ def psnr(a: np.ndarray, b: np.ndarray, max_val: float = 1.0) -> float:
     return 10.0 * math.log10(max_val**2 / mse)
 
 
-def _gaussian_kernel(sigma: float = 1.5, radius: int = 5) -> np.ndarray:
-    """1-D normalised Gaussian taps, (2 radius + 1,); radius 5 gives the standard 11-tap window."""
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    k = np.exp(-0.5 * (x / sigma) ** 2)
-    return k / k.sum()
-
-
-def _filter_valid(x: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Separable 'valid' correlation of (H, W) x with the 1-D kernel k on both axes. -> (H-r, W-r)."""
-    n = len(k)
-    h, w = x.shape
-    rows = sum(k[i] * x[i : h - n + 1 + i, :] for i in range(n))
-    return sum(k[i] * rows[:, i : w - n + 1 + i] for i in range(n))
+SSIM_WINDOW = 11  # px: the standard Gaussian window (sigma 1.5)
 
 
 def ssim(a: np.ndarray, b: np.ndarray, data_range: float = 1.0) -> float:
-    """Mean SSIM of two (H, W[, C]) images (each side >= 11 px); channel-wise, averaged over channels."""
+    """Mean SSIM of two (H, W[, C]) images (each side >= 11 px): kornia's SSIM map in float64 over the
+    valid region, without its stabilising eps, averaged over pixels and channels."""
+    import torch
+    from kornia.metrics import ssim as ssim_map
+
     a, b = _pair(a, b)
     if a.ndim == 2:
         a, b = a[..., None], b[..., None]
-    k = _gaussian_kernel()
-    if min(a.shape[:2]) < len(k):
-        raise ValueError(f"SSIM needs images of at least {len(k)}x{len(k)} pixels, got {a.shape[:2]}")
-    c1 = (0.01 * data_range) ** 2
-    c2 = (0.03 * data_range) ** 2
-    vals = []
-    for c in range(a.shape[2]):
-        x, y = a[..., c], b[..., c]
-        mx, my = _filter_valid(x, k), _filter_valid(y, k)
-        vx = _filter_valid(x * x, k) - mx * mx
-        vy = _filter_valid(y * y, k) - my * my
-        cxy = _filter_valid(x * y, k) - mx * my
-        s = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
-        vals.append(float(s.mean()))
-    return float(np.mean(vals))
+    if min(a.shape[:2]) < SSIM_WINDOW:
+        raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {a.shape[:2]}")
+
+    def nchw(x: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1)))[None]
+
+    m = ssim_map(nchw(a), nchw(b), SSIM_WINDOW, max_val=float(data_range), eps=0.0, padding="valid")
+    return float(m.mean())
 
 
 def summarize(values) -> dict:

@@ -59,10 +59,11 @@ def check_names(
     seen: dict[str, str] = {}
     for name in names:
         problem = name_problem(name, subfolders=subfolders)
-        if problem is None and exts is not None and os.path.splitext(name)[1].lower() not in exts:
-            problem = f"does not end with an image extension ({', '.join(exts)})"
         if problem:
             raise InputError(f"{where}: {what} {name!r} {problem}")
+        assert isinstance(name, str)  # name_problem names anything that is not text
+        if exts is not None and os.path.splitext(name)[1].lower() not in exts:
+            raise InputError(f"{where}: {what} {name!r} does not end with an image extension ({', '.join(exts)})")
         key = unicodedata.normalize("NFC", name).casefold()
         if key in views:
             raise InputError(

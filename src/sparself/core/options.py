@@ -3,9 +3,11 @@ is built from the fields (:func:`add_options`, :func:`from_args`).
 
     size: int = option(128, "long side in px of the training images")
 
-A field made with :func:`option` becomes ``--size`` (underscores become dashes); ``choices`` restrict
-its values; a bool that defaults to True becomes ``--no-<name>``, one that defaults to False
-``--<name>``; ``bool | None`` takes auto/yes/no; a tuple of ints (or floats) is comma-separated (``--holdout 3,10``).
+A field made with :func:`option` becomes ``--size`` (underscores become dashes). A ``Literal`` type names
+its choices: the command line offers only those, and :func:`check_choices` (called by the dataclass's own
+validation) rejects any other value, however the config was made. A bool that defaults to True becomes
+``--no-<name>``, one that defaults to False ``--<name>``; its help says what the field means when True.
+``bool | None`` takes auto/yes/no; a tuple of ints (or floats) is comma-separated (``--holdout 3,10``).
 ``cli=False`` keeps a field off the command line (set it from Python or a saved config).
 """
 
@@ -13,15 +15,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import Any
+import typing
+from typing import Any, Literal
+
+from sparself.core.errors import ConfigError
 
 
-def option(
-    default: Any, help: str, *, choices=None, cli: bool = True, metavar: str | None = None, flag: str | None = None
-):
-    """A dataclass field with its help text (and allowed values, its flag if not ``--<name>``) for the
-    generated command line."""
-    md = {"help": help, "choices": tuple(choices) if choices else None, "cli": cli, "metavar": metavar, "flag": flag}
+def option(default: Any, help: str, *, cli: bool = True, metavar: str | None = None, flag: str | None = None):
+    """A dataclass field with its help text (and its flag if not ``--<name>``) for the generated command
+    line. help: what the field means (for a bool: what True does)."""
+    md = {"help": help, "cli": cli, "metavar": metavar, "flag": flag}
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=md)
     return dataclasses.field(default=default, metadata=md)
@@ -54,6 +57,25 @@ def _auto_bool(text: str) -> bool | None:
         raise argparse.ArgumentTypeError(f"expected auto, yes or no, got {text!r}") from None
 
 
+def literal_choices(cls: type) -> dict[str, tuple]:
+    """The fields of dataclass ``cls`` typed ``Literal[...]``: name -> the allowed values."""
+    hints = typing.get_type_hints(cls)
+    return {
+        f.name: typing.get_args(hints[f.name])
+        for f in dataclasses.fields(cls)
+        if typing.get_origin(hints[f.name]) is Literal
+    }
+
+
+def check_choices(config: Any) -> None:
+    """Raise ConfigError naming the first ``Literal`` field of dataclass ``config`` whose value is not one
+    of its choices."""
+    for name, allowed in literal_choices(type(config)).items():
+        value = getattr(config, name)
+        if value not in allowed:
+            raise ConfigError(f"{name} must be one of {', '.join(map(str, allowed))}, got {value!r}")
+
+
 def _kind(f: dataclasses.Field) -> str:
     return str(f.type).replace(" ", "")
 
@@ -75,7 +97,7 @@ def _type(kind: str):
 
 
 def add_options(
-    p: argparse.ArgumentParser,
+    p: argparse._ActionsContainer,  # a parser or an argument group
     cls,
     skip: tuple[str, ...] = (),
     *,
@@ -85,13 +107,14 @@ def add_options(
     """Add an argument for every :func:`option` field of dataclass ``cls`` (except ``skip``). unset: an
     option not given is left out of the parsed arguments (its default is applied later); notes: text
     appended to some fields' help."""
+    choices = literal_choices(cls)
     for f in dataclasses.fields(cls):
         md = f.metadata
         if f.name in skip or "help" not in md or not md["cli"]:
             continue
         note = (notes or {}).get(f.name, "")
         flag, kind = md["flag"] or "--" + f.name.replace("_", "-"), _kind(f)
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
         given = argparse.SUPPRESS if unset else default
         if kind == "bool":
             neg = default is True
@@ -100,14 +123,14 @@ def add_options(
                 dest=f.name,
                 default=given,
                 action="store_false" if neg else "store_true",
-                help=md["help"] + note,
+                help=f"{md['help']} ({'on by default; this flag turns it off' if neg else 'off by default'}{note})",
             )
             continue
         p.add_argument(
             flag,
             dest=f.name,
             default=given,
-            choices=md["choices"],
+            choices=choices.get(f.name),
             type=_type(kind),
             metavar=md["metavar"] or ("auto|yes|no" if kind == "bool|None" else None),
             help=f"{md['help']} (default {_fmt(default)}{note})",

@@ -79,11 +79,11 @@ def homography_warp(src: torch.Tensor, H: torch.Tensor, out_hw: tuple[int, int])
 
 def plane_sweep(
     src: torch.Tensor,
-    K_src: torch.Tensor,
-    w2c_src: torch.Tensor,
-    K_dst: torch.Tensor,
-    w2c_dst: torch.Tensor,
-    depths: torch.Tensor,
+    K_src: torch.Tensor | np.ndarray,
+    w2c_src: torch.Tensor | np.ndarray,
+    K_dst: torch.Tensor | np.ndarray,
+    w2c_dst: torch.Tensor | np.ndarray,
+    depths: torch.Tensor | np.ndarray,
     out_hw: tuple[int, int],
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Plane-sweep volume: every source image warped onto every depth plane of the destination camera.
@@ -109,7 +109,8 @@ def _dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     ga = cv2.cvtColor((a * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
     gb = cv2.cvtColor((b * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    # cv2's type stubs lack this function
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
     return dis.calc(ga, gb, None)
 
 

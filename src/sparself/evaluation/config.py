@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any, Literal
 
 from sparself.core.errors import ConfigError
-from sparself.core.options import option
+from sparself.core.options import check_choices, option
 from sparself.synthesis.train_config import TrainConfig
 
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
@@ -14,13 +15,10 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
 
 
-POINTS_CHOICES = ("inputs", "capture")  # where the inputs' sparse points come from (EvalConfig.points)
-
-
 VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight
 
 # what --quick changes
-QUICK = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
+QUICK: dict[str, Any] = dict(size=64, seeds=1, nerf_steps=300, max_eval=6, densify_baselines=("blend",), epochs=3)
 
 
 @dataclass
@@ -60,10 +58,10 @@ class EvalConfig:
     nerf_steps: int = option(1000, "NeRF optimisation steps per fit")
     recon_seed: int = option(0, "seed of the reconstructors")
     max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; auto: all)")
-    oracle: bool = option(True, "skip the oracle densification (real photos at the planned poses)")
+    oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(
         True,
-        "skip 'N + sparself, weighted': each reconstructor refitted on N + the network's "
+        "'N + sparself, weighted': each reconstructor also refitted on N + the network's "
         "views with their confidence maps as per-pixel loss weights and a synthetic-frame "
         "weight chosen on input views only",
     )
@@ -74,14 +72,13 @@ class EvalConfig:
         "held-back inputs wins (one fit per weight and reconstructor, plus one refit per seed)",
     )
     examples: int = option(1, "held-out frames per scene saved as image grids for the report")
-    lpips: bool = option(True, "skip LPIPS")
-    points: str = option(
+    lpips: bool = option(True, "score LPIPS besides PSNR and SSIM (when its weights are found on this machine)")
+    points: Literal["inputs", "capture"] = option(
         "inputs",
         "the inputs' sparse points (3DGS initial Gaussians, NeRF's scene box, the depth "
         "range of scenes without bounds): 'inputs' triangulates them from the N inputs' photos at their "
         "known poses (the capture's own points, made from every photo, held-out ones included, are "
         "dropped); 'capture' keeps the capture's points (as runs before this option)",
-        choices=POINTS_CHOICES,
     )
     progress: bool = option(True, "progress bars", cli=False)
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -99,8 +96,7 @@ class EvalConfig:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
             raise ConfigError(f"extrapolation_margin must not be negative, got {self.extrapolation_margin}")
-        if self.points not in POINTS_CHOICES:
-            raise ConfigError(f"points must be one of {', '.join(POINTS_CHOICES)}, got {self.points!r}")
+        check_choices(self)
         if self.weighted and (not self.synthetic_weights or min(self.synthetic_weights) < 0):
             raise ConfigError(f"synthetic_weights must be one or more weights >= 0, got {self.synthetic_weights}")
 

@@ -87,7 +87,7 @@ def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Pat
     if not gs_ok and "gsplat" in cfg.reconstructors:
         cfg = replace(cfg, reconstructors=tuple(r for r in cfg.reconstructors if r != "gsplat"))
     for item in tqdm(list(scenes), desc="scenes", disable=not cfg.progress):
-        label = str(item) if not isinstance(item, Scene) else str(item.source or item.meta.get("name", "scene"))
+        label = str(item) if not isinstance(item, Scene) else str(item.source or "scene")
         try:
             if isinstance(item, Scene):
                 scene = item

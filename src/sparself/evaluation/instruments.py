@@ -18,7 +18,7 @@ from sparself.core import metrics
 from sparself.core.errors import ConfigError, InputError
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
-from sparself.recon import get_reconstructor
+from sparself.recon import Renderer, get_reconstructor
 from sparself.synthesis.baselines import BASELINES
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import train
@@ -47,7 +47,7 @@ def score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> dict:
 
 def versions() -> dict:
     """Versions of everything that produced the numbers (missing packages are None)."""
-    out = {"python": platform.python_version(), "platform": platform.platform()}
+    out: dict[str, str | None] = {"python": platform.python_version(), "platform": platform.platform()}
     for name in ("sparself", "torch", "numpy", "pycolmap", "kornia", "cv2", "skimage"):
         try:
             mod = __import__(name)
@@ -95,7 +95,7 @@ def baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
     return {n: BASELINES[n] for n in names}
 
 
-def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], object]:
+def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], Renderer]:
     """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
     the evaluation's settings applied."""
     fit = get_reconstructor(name)

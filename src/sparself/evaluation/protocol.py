@@ -86,6 +86,7 @@ from sparself.evaluation.results import (
 )
 from sparself.evaluation.split import Split, make_split
 from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_views, weighted_scene
+from sparself.recon import Renderer
 from sparself.synthesis.plan import PlanConfig, plan_poses
 
 log = logging.getLogger(__name__)
@@ -139,7 +140,7 @@ def plan(inputs: Scene, split: Split, cfg: EvalConfig, full: Scene) -> tuple[lis
 def scene_name(scene: Scene) -> str:
     """The capture's folder name (a pose file's folder: ``middlebury_dinoSparseRing``, not ``dinoSR_par.txt``)."""
     if scene.source is None:
-        return str(scene.meta.get("name", "scene"))
+        return "scene"
     return name_from_source(scene.source)
 
 
@@ -211,6 +212,7 @@ class SceneEval:
         return ScoredSet(rows, seed=seed, views=views)
 
     def _save_example(self, frame: str, label: str, image: np.ndarray, truth: np.ndarray) -> None:
+        assert self.ex_dir is not None and self.out_dir is not None  # examples are saved into an output folder
         d = self.ex_dir / _safe(frame)
         d.mkdir(exist_ok=True)
         if not (d / "ground_truth.png").exists():
@@ -253,8 +255,7 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
             f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
             "the reconstructors start without sparse points"
         )
-        meta = {k: v for k, v in full.meta.items() if k not in ("point_colors", "observations")}  # the capture's
-        return replace(full, points=None, meta=meta)
+        return replace(full, points=None, point_colors=None, observations={})  # the capture's
     return with_points(full, tri)
 
 
@@ -422,7 +423,7 @@ def oracle_share(entry: dict) -> None:
             entry[share] = share_of_oracle_gain(b, entry[key]["summary"]["psnr"]["mean"], o)
 
 
-def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
+def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
     """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
     (which keeps what was done if a fit fails)."""
     net = SeededSets()
@@ -456,11 +457,12 @@ def render_targets(ev: SceneEval, renderer) -> np.ndarray:
     return np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
 
 
-def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], object], entry: dict) -> None:
+def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
     """'N + sparself, weighted': per seed, the inputs + its views (synthesized from all inputs) with their
     confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
     run's first seed (its network's views synthesized again without the held-back inputs)."""
     if ev.validation is None:
+        assert ev.net_synth is not None  # kept by the first seed, which runs before any weighted fit
         ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synth)
     choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
     choice["chosen_on_seed"] = ev.cfg.first_seed
@@ -473,7 +475,7 @@ def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], object], ent
     entry[NETWORK_WEIGHTED] = {**sets.to_json(), "per_seed": records}
 
 
-def densification(ev: SceneEval, reconstructors: dict[str, Callable[[Scene], object]] | None) -> None:
+def densification(ev: SceneEval, reconstructors: dict[str, Callable[[Scene], Renderer]] | None) -> None:
     """Each reconstructor from N views vs N + synthesized views vs the oracle; a failure is recorded."""
     recs = reconstructors if reconstructors is not None else {}
     dens: dict = {}
@@ -496,7 +498,7 @@ def evaluate_scene(
     out_dir: Path | None = None,
     *,
     network: Callable[[Scene, int], SynthFn] | None = None,
-    reconstructors: dict[str, Callable[[Scene], object]] | None = None,
+    reconstructors: dict[str, Callable[[Scene], Renderer]] | None = None,
     baselines: dict[str, SynthFn] | None = None,
     on_partial: Callable[[dict], None] | None = None,
 ) -> dict:

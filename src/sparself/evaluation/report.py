@@ -231,7 +231,8 @@ def _densification_tables(doc: Doc, c: _Ctx) -> None:
         header = ["Scene"]
         for r in c.recons:
             header += [f"{r} N", f"{r} N+synth", f"{r} change"]
-        rows, cols = [], {}
+        rows: list[list[str]] = []
+        cols: dict[str | None, list[tuple[list, list]]] = {}  # group -> per reconstructor (N, N + synth) values
         for s in c.ok:
             for label, g in _group_rows(s, s["name"]):
                 row, gcols = [label], cols.setdefault(g, [([], []) for _ in c.recons])
@@ -377,7 +378,8 @@ def _view_synthesis_tables(doc: Doc, c: _Ctx) -> None:
     doc.h(2, "View synthesis at held-out poses (sparself vs baselines)")
     methods, lp = _methods(c.ok), c.lp
     for metric, mlabel in METRICS:
-        rows, cols = [], {}
+        rows: list[list[str]] = []
+        cols: dict[str | None, list[list]] = {}  # group -> per method its values
         for s in c.ok:
             for label, g in _group_rows(s, s["name"]):
                 row, gcols = [label], cols.setdefault(g, [[] for _ in methods])
@@ -473,29 +475,27 @@ def conclusions(results: dict) -> list[str]:
             for s in ok
             if r in s["densification"]
         ]
-        pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
-        if not pairs:
+        known = [(a, b) for a, b in pairs if a is not None and b is not None]
+        if not known:
             out.append(f"{r}: no densification result.")
             continue
-        wins = sum(b > a for a, b in pairs)
-        d = float(np.mean([b - a for a, b in pairs]))
+        wins = sum(b > a for a, b in known)
+        d = float(np.mean([b - a for a, b in known]))
         verdict = "beats" if d > 0 else "does not beat"
         out.append(
             f"{r}: N + sparself views {verdict} N views on average by PSNR ({d:+.2f} dB; better on "
-            f"{wins} of {len(pairs)} scenes)."
+            f"{wins} of {len(known)} scenes)."
         )
         for k in sorted(
             {k for s in ok for k, v in s["densification"].get(r, {}).items() if isinstance(v, dict) and "summary" in v}
             - {"base", NETWORK}
         ):
-            diffs = [
-                mean_of(s["densification"][r].get(NETWORK), "psnr")[0] - mean_of(s["densification"][r][k], "psnr")[0]
+            both = [
+                (mean_of(s["densification"][r].get(NETWORK), "psnr")[0], mean_of(s["densification"][r][k], "psnr")[0])
                 for s in ok
-                if r in s["densification"]
-                and k in s["densification"][r]
-                and mean_of(s["densification"][r].get(NETWORK), "psnr")[0] is not None
-                and mean_of(s["densification"][r][k], "psnr")[0] is not None
+                if r in s["densification"] and k in s["densification"][r]
             ]
+            diffs = [a - b for a, b in both if a is not None and b is not None]
             if diffs and k == NETWORK_WEIGHTED:
                 out.append(
                     f"{r}: N + sparself, weighted (confidence x the chosen synthetic-frame weight) vs "
@@ -521,11 +521,11 @@ def _view_synthesis_conclusions(s: dict) -> list[str]:
         (EXTRAPOLATED, " of extrapolated frames"),
     ):
         net, _ = mean_of(v.get(NETWORK), "psnr", group)
-        base = {k: mean_of(e, "psnr", group)[0] for k, e in v.items() if k != NETWORK and "summary" in e}
-        base = {k: x for k, x in base.items() if x is not None}
+        scored = {k: mean_of(e, "psnr", group)[0] for k, e in v.items() if k != NETWORK and "summary" in e}
+        base = {k: x for k, x in scored.items() if x is not None}
         if net is None or not base:
             continue
-        best = max(base, key=base.get)
+        best = max(base, key=lambda k: base[k])
         rel = "beats" if net > base[best] else "does not beat"
         out.append(
             f"{s['name']}: view synthesis{what}: sparself ({net:.2f} dB) {rel} the best baseline, {best} "
@@ -554,7 +554,8 @@ def _batch_section(doc: Doc, c: _Ctx) -> None:
         return
     doc.h(2, "Batch: sparself over captures and seeds")
     for metric, mlabel in METRICS[:2]:
-        rows, cols = [], [[] for _ in range(1 + len(c.recons))]
+        rows: list[list[str]] = []
+        cols: list[list[float | None]] = [[] for _ in range(1 + len(c.recons))]
         for s in c.ok:
             cells = [mean_of(s.get("view_synthesis", {}).get(NETWORK), metric)]
             for r in c.recons:

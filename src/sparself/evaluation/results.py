@@ -87,7 +87,7 @@ class SeededSets:
         return [g for g in GROUPS if any(g in p.groups() for p in self.per_seed)]
 
     def to_json(self) -> dict:
-        d = {"per_seed": [p.to_json() for p in self.per_seed], "summary": self.summary()}
+        d: dict[str, object] = {"per_seed": [p.to_json() for p in self.per_seed], "summary": self.summary()}
         if self.per_seed and self.per_seed[0].views is not None:
             d["views"] = self.per_seed[0].views
         if len(self.groups()) > 1:
@@ -110,7 +110,7 @@ def share_of_oracle_gain(base: float | None, synth: float | None, oracle: float 
     """(synth - base) / (oracle - base): the part of the oracle's gain that synthesized views capture; None
     when a value is missing or the oracle gains less than MIN_ORACLE_GAIN_DB (a share of a gain the
     oracle does not show is noise, not a fraction)."""
-    if None in (base, synth, oracle) or oracle - base < MIN_ORACLE_GAIN_DB:
+    if base is None or synth is None or oracle is None or oracle - base < MIN_ORACLE_GAIN_DB:
         return None
     return float((synth - base) / (oracle - base))
 

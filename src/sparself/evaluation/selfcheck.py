@@ -30,7 +30,7 @@ from sparself.capture.images import resize_image
 from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
-from sparself.core.options import option
+from sparself.core.options import check_choices, option
 from sparself.evaluation.instruments import SynthFn, images_and_confidence
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -45,8 +45,6 @@ from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
 
 log = logging.getLogger(__name__)
 
-RECONS = ("3dgs", "nerf", "mpi", "none")
-PLANS = ("weak", "paper")
 BLUR = 5  # px: the view-minus-render difference is averaged over this window before it is compared
 
 
@@ -58,13 +56,11 @@ class SelfCheckConfig:
         "3dgs",
         "reconstruction the views must improve: plan where it is weak, keep only views that raise its PSNR on "
         "held-back input photos (none: the paper's plan, every view kept, no fit)",
-        choices=RECONS,
     )
     plan_mode: Literal["weak", "paper"] = option(
         "weak",
         "where views go: where fits on complementary halves of the inputs disagree most (weak), or the "
         "paper's midpoints and extrapolations (paper; always with --recon none)",
-        choices=PLANS,
         flag="--plan",
     )
     check_size: int = option(128, "long side in px of the self-check's fits")
@@ -84,8 +80,7 @@ class SelfCheckConfig:
     check_seed: int = option(0, "seed of the self-check's fits")
 
     def validate(self) -> None:
-        if self.recon not in RECONS or self.plan_mode not in PLANS:
-            raise ConfigError(f"recon must be one of {', '.join(RECONS)} and plan one of {', '.join(PLANS)}")
+        check_choices(self)
         if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
             raise ConfigError(
                 f"check_size must be >= 8 and check_steps >= 1, got {self.check_size}, {self.check_steps}"
@@ -173,8 +168,8 @@ def informative_confidence(
     conf = np.ones(images.shape[:3], np.float32) if confidence is None else np.asarray(confidence, np.float32)
     if cfg.agree_within <= 0:
         return conf
-    diff = torch.from_numpy(np.abs(np.asarray(images, np.float32) - reference).mean(-1))[:, None]
-    diff = torch.nn.functional.avg_pool2d(diff, BLUR, 1, BLUR // 2, count_include_pad=False)[:, 0].numpy()
+    raw = torch.from_numpy(np.abs(np.asarray(images, np.float32) - reference).mean(-1))[:, None]
+    diff = torch.nn.functional.avg_pool2d(raw, BLUR, 1, BLUR // 2, count_include_pad=False)[:, 0].numpy()
     tau = cfg.agree_within
     factor = cfg.agree_weight + (1.0 - cfg.agree_weight) * np.clip((diff - tau) / tau, 0.0, 1.0)
     return (conf * factor).astype(np.float32)

@@ -59,7 +59,7 @@ class Split:
     rule: str
     margin: list[int] = field(default_factory=list)
 
-    def group(self, i: int) -> str:
+    def group(self, i: float) -> str:
         """EXTRAPOLATED for a frame beyond the first or last input in capture order, else INTERPOLATED."""
         return EXTRAPOLATED if i < self.inputs[0] or i > self.inputs[-1] else INTERPOLATED
 

@@ -13,6 +13,7 @@ from sparself.core import metrics
 from sparself.core.errors import ConfigError
 from sparself.evaluation.config import VALIDATION_EVERY
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, with_images
+from sparself.recon import Renderer
 
 
 def weighted_scene(
@@ -60,7 +61,7 @@ def validation_views(inputs: Scene, planned: list[Frame], synth: SynthFn) -> Val
     return ValidationViews(images, confidence, [f.name for f in train.frames])
 
 
-def held_back_psnr(inputs: Scene, renderer) -> np.ndarray:
+def held_back_psnr(inputs: Scene, renderer: Renderer) -> np.ndarray:
     """PSNR of ``renderer`` at each :func:`validation_inputs` view of ``inputs`` (their own photos), in order."""
     val = validation_inputs(len(inputs))
     return np.array(
@@ -69,7 +70,7 @@ def held_back_psnr(inputs: Scene, renderer) -> np.ndarray:
 
 
 def weight_scores(
-    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], object]
+    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
 ) -> dict[float, np.ndarray]:
     """For each synthetic-frame weight of ``grid``: the :func:`held_back_psnr` of a fit on the inputs minus
     :func:`validation_inputs` (+ the planned ``views`` at that weight). Reads the inputs' pixels only, never a
@@ -86,7 +87,7 @@ def weight_scores(
 
 
 def choose_weight(
-    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], object]
+    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
 ) -> dict:
     """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
     planned ``views``) renders those held-back *input* views best (mean PSNR; the first on ties), as

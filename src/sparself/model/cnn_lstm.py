@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -76,6 +77,22 @@ def sequence_layout(n_src: int, src_pos: np.ndarray, q_pos: np.ndarray, exclude:
     return np.asarray(rows, dtype=np.int64).reshape(len(q_pos), -1)
 
 
+class Decoder(nn.Module):
+    """What :class:`CNNLSTM` asks of its image decoder (:mod:`sparself.model.decoders`): called with the
+    sources, the queries (:mod:`sparself.model.query`) and the LSTM context ``ctx`` (T, 512), it renders
+    the queries (T, 3, h, w)."""
+
+    reads_sources: ClassVar[bool]  # whether it samples the source images (else it decodes the context alone)
+
+    def native_hw(self, hw: tuple[int, int]) -> tuple[int, int]:
+        """The size it renders queries of size ``hw`` at (training compares at this size)."""
+        raise NotImplementedError
+
+    def with_confidence(self, sources: Any, queries: Any, ctx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The rendered queries and each pixel's confidence in [0, 1]. -> ((T, 3, h, w), (T, 1, h, w))."""
+        raise NotImplementedError
+
+
 class CNNLSTM(nn.Module):
     """The CNN–LSTM context network plus a decoder.
 
@@ -83,7 +100,10 @@ class CNNLSTM(nn.Module):
     context: if False the LSTM output given to the decoder is zeroed (ablation: "no LSTM context").
     """
 
-    def __init__(self, decoder: nn.Module, backbone_size: int = 224, context: bool = True) -> None:
+    mean: torch.Tensor  # buffers, registered in __init__
+    std: torch.Tensor
+
+    def __init__(self, decoder: Decoder, backbone_size: int = 224, context: bool = True) -> None:
         super().__init__()
         self.backbone = ResNet18()
         self.feat_fc = nn.Linear(512, FEAT_DIM)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import torch
 import torch.nn as nn
@@ -38,12 +38,13 @@ import torch.nn.functional as F
 from kornia.metrics import ssim as kornia_ssim
 
 from sparself.core.warp import homography_warp, plane_sweep
+from sparself.model.cnn_lstm import Decoder
 
 if TYPE_CHECKING:
     from sparself.model.query import Crop, Queries, Sources
 
 
-class FCDecoder(nn.Module):
+class FCDecoder(Decoder):
     """The paper's output layer: Output = W_out h + b_out reshaped to (3, h, w), resized to the queries'
     size. It reads only the context, never the sources."""
 
@@ -132,7 +133,7 @@ def sweep_volume(
     return x.permute(1, 0, 2, 3).contiguous()
 
 
-class SweepDecoder(nn.Module):
+class SweepDecoder(Decoder):
     """Small 3D CNN over a plane-sweep volume, FiLM-conditioned on the LSTM output.
 
     Input x: (B, 8, D + 1, h, w) from :func:`sweep_volume`; ctx: (B, 512). Output (B, 3, h, w):
@@ -191,13 +192,11 @@ class SweepDecoder(nn.Module):
             else None
         )
         if self.residual is not None:
-            nn.init.zeros_(self.residual[-1].weight)
-            nn.init.zeros_(self.residual[-1].bias)
+            _init_last(self.residual, 0.0)
         self.attend = None
         if n_sources > 2:  # per-source attention: context features, deviation, visibility, is-bracketing
             self.attend = nn.Sequential(nn.Conv3d(c + 3, c, 1), nn.ReLU(inplace=True), nn.Conv3d(c, 1, 1))
-            nn.init.zeros_(self.attend[-1].weight)
-            nn.init.zeros_(self.attend[-1].bias)
+            _init_last(self.attend, 0.0)
             self.extra_bias = nn.Parameter(torch.tensor(-4.0))  # start close to the pair alone
         self.gate_gain = float(gate_gain)
         self.gate = None
@@ -206,11 +205,10 @@ class SweepDecoder(nn.Module):
             self.gate = nn.Sequential(
                 nn.Conv2d(3 + 3 + 4, 16, 3, padding=1), nn.ReLU(inplace=True), nn.Conv2d(16, 1, 3, padding=1)
             )
-            nn.init.zeros_(self.gate[-1].weight)
-            nn.init.constant_(self.gate[-1].bias, float(gate_init) / self.gate_gain)
+            _init_last(self.gate, float(gate_init) / self.gate_gain)
 
     def native_hw(self, hw: tuple[int, int]) -> tuple[int, int]:
-        return tuple(hw)
+        return hw[0], hw[1]
 
     def forward(self, sources: "Sources", queries: "Queries", ctx: torch.Tensor) -> torch.Tensor:
         """Each query (or its crop) decoded from the sweep volume of its source set. -> (T, 3, h, w)."""
@@ -227,7 +225,7 @@ class SweepDecoder(nn.Module):
             if max(h, w) > self.tile:
                 both = torch.stack([self._decode_tiled(sources, queries, ctx, b) for b in range(len(queries))])
             else:
-                per = max(1, self.max_voxels // (len(sources.depths) * h * w))
+                per = max(1, self.max_voxels // (len(sources.sweep_depths()) * h * w))
                 both = torch.cat(
                     [
                         self._decode4(
@@ -365,20 +363,31 @@ def confidence_map(
     return (gate * sweep + (1 - gate) * fallback).clamp(0, 1)
 
 
+def _init_last(seq: nn.Sequential, bias: float) -> None:
+    """Zero the weights of ``seq``'s last convolution and set its bias: the branch starts as a constant."""
+    last = seq[-1]
+    assert isinstance(last, (nn.Conv2d, nn.Conv3d)) and last.bias is not None
+    nn.init.zeros_(last.weight)
+    nn.init.constant_(last.bias, bias)
+
+
 def match_cost(c: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """Photo-consistency per voxel: the mean over source pairs of their mean absolute colour difference
     where both see the voxel, 1 (mismatch) where one does not. c (B, n, 3, D, h, w); v (B, n, 1, D, h, w)
     -> (B, 1, D, h, w)."""
     n = c.shape[1]
-    total = 0
+    total: torch.Tensor | int = 0
     for i in range(n):
         for j in range(i + 1, n):
             both = v[:, i] * v[:, j]
             total = total + (c[:, i] - c[:, j]).abs().mean(1, keepdim=True) * both + (1 - both)
+    assert isinstance(total, torch.Tensor)  # at least two sources
     return total / (n * (n - 1) // 2)
 
 
-DECODERS = {"sweep": SweepDecoder, "fc": FCDecoder}  # name -> class (each has ``reads_sources``)
+DecoderName = Literal["sweep", "fc"]  # the keys of DECODERS
+# name -> class (each has ``reads_sources``)
+DECODERS: dict[str, type[Decoder]] = {"sweep": SweepDecoder, "fc": FCDecoder}
 
 
 def _volume(sources: "Sources", queries: "Queries", b: int, crop: "Crop") -> torch.Tensor:
@@ -392,7 +401,7 @@ def _volume(sources: "Sources", queries: "Queries", b: int, crop: "Crop") -> tor
         sources.w2c[s],
         queries.crop_camera(b, crop),
         queries.w2c[b],
-        sources.depths,
+        sources.sweep_depths(),
         (h, w),
         plain,
     )
@@ -407,7 +416,7 @@ def build_decoder(
     gate: bool = True,
     gate_init: float = 0.0,
     n_sources: int = 2,
-) -> nn.Module:
+) -> Decoder:
     if name == "sweep":
         return SweepDecoder(
             channels, windows=windows, extra_layers=extra_layers, gate=gate, gate_init=gate_init, n_sources=n_sources

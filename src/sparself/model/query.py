@@ -92,7 +92,7 @@ def camera_centres(w2c: torch.Tensor) -> np.ndarray:
     return (-(m[:, :3, :3].transpose(1, 2) @ m[:, :3, 3:4])[..., 0]).numpy()
 
 
-def bracket_fraction(positions: np.ndarray, pair: tuple[int, int], q: float) -> float:
+def bracket_fraction(positions: np.ndarray, pair: tuple[int, ...], q: float) -> float:
     """Position of q between the sources of ``pair``: 0 at the first, 1 at the second."""
     a, b = float(positions[pair[0]]), float(positions[pair[1]])
     return (q - a) / (b - a) if b != a else 0.0
@@ -164,6 +164,18 @@ class Sources:
     def to(self, device: torch.device) -> "Sources":
         return replace(self, images=self.images.to(device), K=self.K.to(device), w2c=self.w2c.to(device))
 
+    def pose_vectors(self) -> torch.Tensor:
+        """``vectors``, which :meth:`posed` sets. -> (S, 7)"""
+        if self.vectors is None:
+            raise ValueError("sources without pose vectors: call posed() first")
+        return self.vectors
+
+    def sweep_depths(self) -> torch.Tensor:
+        """``depths``, the sweep planes :meth:`posed` sets. -> (D,)"""
+        if self.depths is None:
+            raise ValueError("sources without sweep planes: call posed() with depths first")
+        return self.depths
+
     def posed(self, norm: PoseNorm, depths: np.ndarray | None = None) -> "Sources":
         """With the pose vectors of ``norm`` and the sweep planes ``depths`` (on the sources' device)."""
         dev = self.device
@@ -233,7 +245,7 @@ def leave_one_out(sources: Sources, hw: tuple[int, int] | None = None, k: int = 
     return Queries(
         K=sources.K,
         w2c=sources.w2c,
-        vectors=sources.vectors,
+        vectors=sources.pose_vectors(),
         positions=pos,
         n_before=torch.as_tensor(np.arange(len(pos)), device=sources.device),
         sets=[s for s, _ in found],
@@ -288,7 +300,7 @@ def contexts(model: CNNLSTM, sources: Sources, queries: Queries) -> torch.Tensor
         feats = model.encode(bb)
     src_pos = torch.tensor(sources.positions, dtype=torch.float32, device=sources.device)
     q_pos = torch.tensor(queries.positions, dtype=torch.float32, device=sources.device)
-    return model.contexts(feats, sources.vectors, src_pos, queries.vectors, q_pos, queries.n_before)
+    return model.contexts(feats, sources.pose_vectors(), src_pos, queries.vectors, q_pos, queries.n_before)
 
 
 def render(model: CNNLSTM, sources: Sources, queries: Queries, crops: list[Crop] | None = None) -> torch.Tensor:

@@ -15,6 +15,7 @@ import numpy as np
 from sparself.capture.scene import MIN_POINTS, Camera, Scene
 from sparself.core.errors import SparselfError
 from sparself.core.geometry import Pose
+from sparself.recon.common import frustum_points, photometric_loss
 
 log = logging.getLogger(__name__)
 
@@ -118,29 +119,13 @@ def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) ->
     return pts, np.full_like(pts, 0.5)
 
 
-def frustum_points(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(about n, 3) random world points: n / len(scene) per camera (at least 1), uniform over its image
-    and log-uniform in depth between the scene's depth bounds."""
-    near, far = scene.depth_bounds()
-    pts = []
-    per = max(1, n // max(len(scene), 1))
-    for i, f in enumerate(scene.frames):
-        cam = scene.camera(i)
-        u = rng.uniform(0, cam.width, per)
-        v = rng.uniform(0, cam.height, per)
-        z = np.exp(rng.uniform(np.log(near), np.log(far), per))
-        pc = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
-        pts.append((pc - f.pose.tvec) @ f.pose.R)  # R^T (x - t)
-    return np.concatenate(pts)
-
-
 def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> GsplatRenderer:
     """Fit 3D Gaussians to every frame of ``scene`` with gsplat on CUDA.
 
     Raises SparselfError (before any work) when gsplat or CUDA is missing.
     """
     gsplat, torch = _require_gsplat()
-    from sparself.recon.nerf import prepare_fit
+    from sparself.recon.common import prepare_fit
 
     scene, cfg = prepare_fit(scene, GsplatConfig, config, overrides, "gsplat")
     from tqdm.auto import tqdm
@@ -182,7 +167,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
         )
         if strategy is not None:
             strategy.step_pre_backward(params, optimizers, state, step, info)
-        loss = photometric_loss(torch, render, images[i][None], cfg.ssim_lambda, weights[i])
+        loss = photometric_loss(render, images[i][None], cfg.ssim_lambda, weights[i])
         loss.backward()
         if strategy is not None:
             strategy.step_post_backward(params, optimizers, state, step, info, packed=False)
@@ -223,43 +208,6 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
         }
     )
     return params
-
-
-def ssim_torch(torch, a, b, window: int = 11, sigma: float = 1.5):
-    """Mean SSIM of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
-    return ssim_map(torch, a, b, window, sigma).mean()
-
-
-def photometric_loss(torch, render, gt, ssim_lambda: float, weight=None):
-    """The 3DGS loss (1 - lambda) L1 + lambda (1 - SSIM) of (B, H, W, 3) images. weight: per-pixel loss
-    weights (H, W) (a frame's weight x its confidence, :meth:`Scene.pixel_weight`) or None (all 1: the
-    plain loss). Weighted, each term is the mean over pixels of weight x the pixel's error, so a frame
-    of weight w counts w times a real one and a pixel of weight 0 has no gradient."""
-    if weight is None:
-        l1 = (render - gt).abs().mean()
-        return (1 - ssim_lambda) * l1 + ssim_lambda * (1 - ssim_torch(torch, render, gt))
-    l1 = (weight[None, :, :, None] * (render - gt).abs()).mean()
-    dssim = (weight[None, None] * (1 - ssim_map(torch, render, gt))).mean()
-    return (1 - ssim_lambda) * l1 + ssim_lambda * dssim
-
-
-def ssim_map(torch, a, b, window: int = 11, sigma: float = 1.5):
-    """Per-pixel SSIM (B, 3, H, W) of (B, H, W, 3) images with an 11x11 Gaussian window (differentiable)."""
-    import torch.nn.functional as F
-
-    x = a.permute(0, 3, 1, 2)
-    y = b.permute(0, 3, 1, 2)
-    g = torch.exp(-((torch.arange(window, device=a.device) - window // 2) ** 2) / (2 * sigma**2))
-    g = (g / g.sum()).float()
-    k = (g[:, None] * g[None, :]).expand(3, 1, window, window).contiguous()
-
-    def blur(z):
-        return F.conv2d(z, k, padding=window // 2, groups=3)
-
-    mx, my = blur(x), blur(y)
-    sxx, syy, sxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
-    c1, c2 = 0.01**2, 0.03**2
-    return ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2))
 
 
 __all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]

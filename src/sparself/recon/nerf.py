@@ -17,10 +17,9 @@ Rays follow COLMAP's pixel convention: pixel (row i, column j) has its centre at
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,8 +27,9 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from sparself.capture.scene import Camera, Scene
-from sparself.core.errors import ConfigError, InputError
+from sparself.core.errors import ConfigError
 from sparself.core.geometry import Pose
+from sparself.recon.common import at_most_threads, prepare_fit
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ def scene_normalization(scene: Scene) -> tuple[np.ndarray, float]:
     """
     if scene.points is not None and len(scene.points) >= 20:
         p = np.asarray(scene.points, dtype=np.float64)
-        c = np.median(p, axis=0)
+        c: np.ndarray = np.median(p, axis=0)
         r = float(np.percentile(np.linalg.norm(p - c, axis=1), 90))
         if r > 1e-9:
             return c, r
@@ -150,7 +150,7 @@ class _Field(torch.nn.Module):
         return sigma, rgb
 
     def tv(self) -> torch.Tensor:
-        loss = 0.0
+        loss = self.grids[0].new_zeros(())  # exactly 0.0 + the terms, on the grids' device
         for g in self.grids:
             loss = (
                 loss
@@ -173,7 +173,7 @@ def _render_rays(
     jitter: torch.Generator | None,
 ) -> torch.Tensor:
     """Volume-render rays o, d (R, 3) -> colours (R, 3). Samples log-uniform in depth in [near, far]."""
-    R, kw = o.shape[0], dict(dtype=o.dtype, device=o.device)
+    R, kw = o.shape[0], dict[str, Any](dtype=o.dtype, device=o.device)
     u = (torch.arange(n_samples, **kw) + 0.5).expand(R, n_samples)
     if jitter is not None:
         u = u + (torch.rand(R, n_samples, generator=jitter, **kw) - 0.5)
@@ -240,22 +240,6 @@ class NerfRenderer:
         return img.cpu().numpy().astype(np.float32)
 
 
-def prepare_fit(scene: Scene, config_cls, config, overrides: dict, what: str):
-    """(scene, config) for a reconstructor's ``fit``: keyword overrides replace config fields (unknown
-    ones raise ConfigError), an empty scene raises InputError, ``max_side`` resizes the scene."""
-    cfg = config or config_cls()
-    unknown = sorted(set(overrides) - set(cfg.__dict__))
-    if unknown:
-        raise ConfigError(f"{what}: unknown setting(s) {', '.join(unknown)}")
-    if overrides:
-        cfg = dataclasses.replace(cfg, **overrides)
-    if len(scene) == 0:
-        raise InputError(f"{what}: the scene has no frames to train on")
-    if cfg.max_side:
-        scene = scene.resized(cfg.max_side)
-    return scene, cfg
-
-
 def fit(scene: Scene, config: NerfConfig | None = None, **overrides) -> NerfRenderer:
     """Train a compact NeRF on every frame of ``scene`` (images at the cameras' size).
 
@@ -265,17 +249,6 @@ def fit(scene: Scene, config: NerfConfig | None = None, **overrides) -> NerfRend
     scene, cfg = prepare_fit(scene, NerfConfig, config, overrides, "NeRF")
     with at_most_threads(cfg.threads):
         return _fit(scene, cfg)
-
-
-@contextlib.contextmanager
-def at_most_threads(n: int):
-    """torch uses at most n threads (and at least 1) inside; the previous count is restored after."""
-    prev = torch.get_num_threads()
-    torch.set_num_threads(max(1, min(n, prev)))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(prev)
 
 
 def fit_device(name: str) -> torch.device:

@@ -31,7 +31,7 @@ import torch
 from tqdm.auto import tqdm
 
 from sparself.capture.scene import MIN_POINTS, Camera, Scene
-from sparself.core.geometry import Pose
+from sparself.core.geometry import Pose, quat_to_rotmat
 
 log = logging.getLogger(__name__)
 
@@ -119,25 +119,6 @@ class Projected:
     depths: torch.Tensor
     radii: torch.Tensor
     ids: torch.Tensor
-
-
-def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    """(N, 4) wxyz, any norm -> (N, 3, 3) rotation matrices."""
-    w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        -1,
-    ).view(-1, 3, 3)
 
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
@@ -334,7 +315,7 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
     """Gaussians at the SfM points (at most ``init_points``, coloured from the training views), topped up to
     ``init_points`` with random points in the cameras' depth-bounded frusta when there are fewer (all random
     without SfM points); isotropic, scale = mean distance to 3 neighbours."""
-    from sparself.recon.gsplat import frustum_points
+    from sparself.recon.common import frustum_points
 
     pts = np.zeros((0, 3))
     if scene.points is not None and len(scene.points) >= MIN_POINTS:
@@ -426,7 +407,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
     config: a :class:`SplatConfig`; keyword overrides replace its fields. Deterministic for ``config.seed``.
     """
-    from sparself.recon.nerf import at_most_threads, prepare_fit
+    from sparself.recon.common import at_most_threads, prepare_fit
 
     scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, "3dgs")
     cfg = dataclasses.replace(cfg, steps=max(cfg.steps, cfg.min_steps_per_view * len(scene)))
@@ -435,7 +416,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
-    from sparself.recon.gsplat import photometric_loss
+    from sparself.recon.common import photometric_loss
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -456,7 +437,7 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
         deg = cfg.sh_degree if step >= cfg.sh_from * cfg.steps else 0
         img, p = render_gaussians(g, scene.frames[i].pose, cam, bg, deg)
         p.means2d.retain_grad()
-        loss = photometric_loss(torch, img[None], images[i][None], cfg.ssim_lambda, weights[i])
+        loss = photometric_loss(img[None], images[i][None], cfg.ssim_lambda, weights[i])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -38,6 +38,7 @@ import logging
 import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -46,7 +47,7 @@ from sparself.capture.scene import Frame, Scene
 from sparself.core.errors import ConfigError, InputError
 from sparself.core.geometry import Pose, interpolate_pose
 from sparself.core.names import check_names
-from sparself.core.options import option
+from sparself.core.options import check_choices, option
 from sparself.core.outputs import atomic_file
 
 log = logging.getLogger(__name__)
@@ -65,15 +66,12 @@ class PlanConfig:
     n_extra: int = option(2, "extrapolated poses past the ends of the path (the paper: 2)")
     t_mid: float = option(0.5, "interpolation parameter of a midpoint")
     t_extra: float = option(1.2, "extrapolation parameter past the pair's second view")
-    order: str = option(
+    order: Literal["auto", "capture", "nearest"] = option(
         "auto",
         "which views are consecutive: capture order, a nearest-neighbour path, or "
         "auto (capture order unless it walks 1.5x further than the nearest-neighbour path)",
-        choices=("auto", "capture", "nearest"),
     )
-    gaps: str = option(
-        "even", "which gaps get midpoints: spread evenly or the widest ones", choices=("even", "largest")
-    )
+    gaps: Literal["even", "largest"] = option("even", "which gaps get midpoints: spread evenly or the widest ones")
 
     def validate(self) -> None:
         if int(self.n_mid) != self.n_mid or self.n_mid < 0:
@@ -84,10 +82,7 @@ class PlanConfig:
             raise ConfigError(f"t_mid must lie strictly between 0 and 1, got {self.t_mid}")
         if not (self.t_extra > 1.0 and math.isfinite(self.t_extra)):
             raise ConfigError(f"t_extra must be a finite number > 1, got {self.t_extra}")
-        if self.order not in ("auto", "capture", "nearest"):
-            raise ConfigError(f"order must be auto, capture or nearest, got {self.order!r}")
-        if self.gaps not in ("even", "largest"):
-            raise ConfigError(f"gaps must be even or largest, got {self.gaps!r}")
+        check_choices(self)
         if self.n_mid == 0 and self.n_extra == 0:
             raise ConfigError("--n-mid 0 and --n-extra 0 plan no novel pose at all; give one of them above 0")
 
@@ -313,7 +308,9 @@ def pick_poses(candidates: list[Candidate], weakness: np.ndarray, cfg: PlanConfi
     larger = the reconstruction is weaker there) is largest: in each chosen gap its weakest candidate (one per
     gap, so the views spread); the extrapolations are the weakest of all beyond the ends. Sorted by index."""
     order = np.argsort(-np.asarray(weakness, np.float64), kind="stable")
-    mids, extras, gaps = [], [], set()
+    mids: list[Frame] = []
+    extras: list[Frame] = []
+    gaps: set[int] = set()
     for k in order:
         c = candidates[k]
         if c.beyond:

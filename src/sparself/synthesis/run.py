@@ -55,19 +55,20 @@ class RunMeta:
     def from_json(cls, d: dict) -> "RunMeta":
         known = {f.name for f in dataclasses.fields(cls)}
         m = cls(**{k: v for k, v in d.items() if k in known})
-        m.center, m.fc_hw, m.train_hw = tuple(m.center), tuple(m.fc_hw), tuple(m.train_hw)
+        c, fc, hw = m.center, m.fc_hw, m.train_hw  # lists in JSON
+        m.center, m.fc_hw, m.train_hw = (c[0], c[1], c[2]), (fc[0], fc[1]), (hw[0], hw[1])
         return m
 
     @property
     def norm(self) -> PoseNorm:
-        return PoseNorm(tuple(self.center), float(self.scale))
+        return PoseNorm(self.center, float(self.scale))
 
 
 def build_model(cfg: TrainConfig, meta: RunMeta) -> CNNLSTM:
     dec = build_decoder(
         cfg.decoder,
         channels=cfg.channels,
-        fc_hw=tuple(meta.fc_hw),
+        fc_hw=meta.fc_hw,
         windows=cfg.windows,
         extra_layers=cfg.extra_layers,
         gate=cfg.gate,

@@ -111,7 +111,7 @@ def densify_scene(
         for t, img, c in zip(targets, images, confs)
     ]
     frames = sorted(list(scene.frames) + new, key=lambda f: f.index)
-    return replace(scene, frames=frames, meta=dict(scene.meta, synthesized=len(new)))
+    return replace(scene, frames=frames)
 
 
 def _check_order(run_path: Path, plan: Path) -> None:

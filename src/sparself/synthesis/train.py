@@ -119,11 +119,7 @@ class TrainData:
     sources: Sources
     queries: Queries
     truth: torch.Tensor
-    trained: np.ndarray | None = None  # (T,) bool: the targets the loss visits (None: all)
-
-    def __post_init__(self) -> None:
-        if self.trained is None:
-            self.trained = np.ones(len(self.queries), bool)
+    trained: np.ndarray  # (T,) bool: the targets the loss visits
 
     def truth_of(self, targets: list[int], crops=None) -> torch.Tensor:
         if crops is None:
@@ -266,7 +262,8 @@ def prepare(scene: Scene, cfg: TrainConfig, device: torch.device) -> tuple[Sourc
     except ValueError as e:
         raise InputError(f"training frames of {scene.source} differ in size ({e}); resize them first") from None
     centers = np.stack([p.center for p in sources.poses])
-    norm = PoseNorm(tuple(float(v) for v in centers.mean(0)), float(src.scale()))
+    mean = centers.mean(0)
+    norm = PoseNorm((float(mean[0]), float(mean[1]), float(mean[2])), float(src.scale()))
     near, far = sweep_depth_bounds(src, cfg.ring_range)
     h, w = sources.hw
     meta = RunMeta(

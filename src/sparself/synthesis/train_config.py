@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -12,10 +13,12 @@ import torch
 from sparself.capture.scene import Scene
 from sparself.core.errors import ConfigError
 from sparself.core.geometry import nearest_point_to_axes
-from sparself.core.options import option
-from sparself.model.decoders import DECODERS
+from sparself.core.options import check_choices, option
+from sparself.model.decoders import DecoderName
 
 MIN_SIZE = 16  # px, long side of the training images
+
+Amp = Literal["auto", "off", "fp16", "bf16"]  # mixed precision modes (amp_dtype)
 
 
 @dataclass
@@ -25,11 +28,10 @@ class TrainConfig:
     measured (benchmarks/synthesis_quality.py): llff_bird 24.36 -> 24.56 dB, templeRing 23.38 -> 26.96 dB
     with "flow" instead of "blend"."""
 
-    decoder: str = option(
+    decoder: DecoderName = option(
         "sweep",
         "sweep: plane-sweep 3D CNN that generalises to new poses; fc: the paper's "
         "single linear layer (memorises its inputs)",
-        choices=("sweep", "fc"),
     )
     epochs: int = option(100, "training epochs")
     size: int = option(128, "long side in px of the training images (CPU-sane)")
@@ -44,23 +46,21 @@ class TrainConfig:
     )
     extra_layers: int = option(0, "additional 3x3x3 conv layers in the sweep decoder")
     gate: bool = option(
-        True, "ablation: no learned per-pixel gate between the sweep's depth-resolved colour and the fallback"
+        True, "a learned per-pixel gate between the sweep's depth-resolved colour and the fallback (off: ablation)"
     )
     gate_init: float = option(
         0.0, "the gate's initial logit (0: half sweep, half fallback; negative: towards the fallback)"
     )
-    ring_range: str = option(
+    ring_range: Literal["wide", "object"] = option(
         "object",
         "depth range of the sweep planes for a ring/object capture without "
         "bounds or sparse points: wide (0.5x-1.5x the camera distances to the common "
         "point) or object (the object that fits every view; measured: README)",
-        choices=("wide", "object"),
     )
-    fallback: str = option(
+    fallback: Literal["flow", "blend"] = option(
         "flow",
         "what the sweep decoder falls back to where depth is ambiguous: the two "
         "sources aligned by optical flow, or as they are",
-        choices=("flow", "blend"),
     )
     ssim_weight: float = option(0.1, "loss = MSE + ssim_weight x (1 - SSIM) (7 px Gaussian window)")
     fc_side: int = option(48, "long side in px of the fc decoder's output grid (upsampled to the target)")
@@ -70,7 +70,7 @@ class TrainConfig:
         "(extrapolated from the two sources on one side); off: only targets between "
         "their two sources, as the planned midpoints are (measured: README)",
     )
-    context: bool = option(True, "ablation: zero the LSTM output given to the decoder")
+    context: bool = option(True, "give the decoder the LSTM output (off: zeros instead, an ablation)")
     sources: int = option(
         2,
         "source views per rendered view (sweep decoder): the two bracketing ones plus "
@@ -81,7 +81,7 @@ class TrainConfig:
         None, "train ResNet-18 end to end (the paper); auto: yes on CUDA, no on CPU (features computed once)"
     )
     seed: int = option(0, "random seed (same seed, same result on CPU)")
-    device: str = option("auto", "where to train", choices=("auto", "cpu", "cuda"))
+    device: Literal["auto", "cpu", "cuda"] = option("auto", "where to train")
     holdout: tuple[int, ...] = option(
         (), "comma-separated frame positions (0-based) never used for training, e.g. 3,10"
     )
@@ -92,11 +92,7 @@ class TrainConfig:
         "auto: the torch hub cache copy if present, else random initialisation with "
         "a warning; 'none': random initialisation, no warning",
     )
-    amp: str = option(
-        "auto",
-        "mixed precision (auto: fp16 with gradient scaling on CUDA, float32 on CPU)",
-        choices=("auto", "off", "fp16", "bf16"),
-    )
+    amp: Amp = option("auto", "mixed precision (auto: fp16 with gradient scaling on CUDA, float32 on CPU)")
     compile: bool = option(False, "torch.compile the decoder in place (pays on GPU for long runs)")
 
     def __post_init__(self) -> None:
@@ -104,8 +100,7 @@ class TrainConfig:
         self.windows = tuple(int(k) for k in self.windows)
         if not self.windows or any(k < 1 or k % 2 == 0 for k in self.windows):
             raise ConfigError(f"windows must be odd sizes >= 1, got {self.windows}")
-        if self.decoder not in DECODERS:
-            raise ConfigError(f"unknown decoder {self.decoder!r}; choose one of {', '.join(DECODERS)}")
+        check_choices(self)
         if int(self.sources) < 2:
             raise ConfigError(f"sources must be >= 2, got {self.sources}")
         for name in ("epochs", "size", "crop", "batch_size", "planes", "channels", "fc_side", "checkpoint_every"):
@@ -116,14 +111,6 @@ class TrainConfig:
                 f"training image size {self.size} px is too small: at least {MIN_SIZE} px "
                 "(train: --size; densify: --out-size)"
             )
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise ConfigError(f"device must be auto, cpu or cuda, got {self.device!r}")
-        if self.ring_range not in ("wide", "object"):
-            raise ConfigError(f"ring_range must be wide or object, got {self.ring_range!r}")
-        if self.fallback not in ("blend", "flow"):
-            raise ConfigError(f"fallback must be blend or flow, got {self.fallback!r}")
-        if self.amp not in AMP_MODES:
-            raise ConfigError(f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}")
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
@@ -139,10 +126,7 @@ class TrainConfig:
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
-AMP_MODES = ("auto", "off", "fp16", "bf16")
-
-
-def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
+def amp_dtype(amp: Amp, device: torch.device) -> torch.dtype | None:
     """The autocast dtype of an ``amp`` mode on ``device`` (None: full float32)."""
     if amp == "auto":
         return torch.float16 if device.type == "cuda" else None

@@ -175,7 +175,8 @@ def write_scene_into(
     if images not in ("copy", "link", "none"):
         raise ValueError(f"images must be 'copy', 'link' or 'none', got {images!r}")
     check_names([f.name for f in scene.frames], scene.source or "scene", what="frame name", subfolders=True)
-    split, sources, dense = None, [], dense or DenseInfo()
+    split, dense = None, dense or DenseInfo()
+    sources: list[str] = []
     if any(f.synthetic for f in scene.frames) or dense.selfcheck is not None:
         scene, split, sources = _dense.layout(scene, dense)
     new_frames = []
@@ -187,7 +188,7 @@ def write_scene_into(
             replace(f, path=dst if images != "none" else f.path, image=None if images != "none" else f.image)
         )
     write_marker(folder)
-    written = replace(scene, frames=new_frames, source=folder, meta=dict(scene.meta))
+    written = replace(scene, frames=new_frames, source=folder, observations=dict(scene.observations))
     masks = images != "none" and any(f.confidence is not None or f.mask is not None for f in scene.frames)
     if masks:  # synthesized views' confidence (nerfstudio's mask_path), or the masks a scene was read with
         _dense.write_masks(folder, written, _dense.FACTORS if dense.downscale else ())

@@ -5,12 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from sparself.capture.scene import Camera, Scene
 from sparself.core.errors import InputError
 
 
-def check_finite(arr: np.ndarray, what: str) -> None:
+def check_finite(arr: npt.ArrayLike, what: str) -> None:
     """Raise InputError('<what> contains NaN or inf ...') when ``arr`` has a non-finite value."""
     arr = np.asarray(arr, dtype=np.float64)
     if not np.all(np.isfinite(arr)):

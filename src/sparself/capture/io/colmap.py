@@ -7,7 +7,6 @@ conversion happens here; only ordering (frames by image name = capture order) an
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ import numpy as np
 from sparself.capture.images import image_size_of
 from sparself.capture.io._common import check_finite, find_image, scene_cameras_dedup
 from sparself.capture.io.dense import read_masks_beside
-from sparself.capture.scene import Camera, Frame, Scene
+from sparself.capture.scene import Camera, Frame, Observations, Scene
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose
 from sparself.core.names import check_names
@@ -23,19 +22,6 @@ from sparself.core.names import check_names
 log = logging.getLogger(__name__)
 
 _MODEL_FILES = ("cameras", "images", "points3D")
-
-
-@dataclass(frozen=True)
-class Observations:
-    """One image's 2D-3D correspondences (its SfM track elements), kept in ``Scene.meta['observations']``
-    by frame name so that a written model keeps them.
-
-    point: (M,) indices into ``Scene.points``; xy: (M, 2) pixel positions (COLMAP convention) in an image
-    of ``size`` = (W, H), scaled when the camera was resized."""
-
-    point: np.ndarray
-    xy: np.ndarray
-    size: tuple[int, int]
 
 
 def find_model_dir(path: Path) -> Path | None:
@@ -178,10 +164,10 @@ def scene_from_reconstruction(
     rec, image_dir: Path | None, *, source: Path | None = None, require_images: bool = True, check_sizes: bool = True
 ) -> Scene:
     """Convert a pycolmap.Reconstruction to a Scene: registered images only, frames sorted by name,
-    ``index`` 0..N-1, ``points`` from points3D (colours in ``meta['point_colors']``).
+    ``index`` 0..N-1, ``points`` from points3D (colours in ``point_colors``).
 
     image_dir: folder the image names are relative to (None: frames get no path).
-    Images without a pose are listed in ``meta['unregistered']``.
+    Images without a pose are listed in ``unregistered``.
     """
     where = source or image_dir or "COLMAP model"
     cams: dict[int, Camera] = {}
@@ -228,10 +214,11 @@ def scene_from_reconstruction(
         frames=frames,
         points=points,
         source=source,
-        meta={"format": "colmap", "unregistered": unregistered, "observations": obs},
+        point_colors=colors,
+        observations=obs,
+        source_format="colmap",
+        unregistered=tuple(unregistered),
     )
-    if colors is not None:
-        scene.meta["point_colors"] = colors
     return scene_cameras_dedup(scene)
 
 
@@ -283,7 +270,7 @@ def read_colmap(path: Path, images: Path | None = None, *, require_images: bool 
 
 def reconstruction_from_scene(scene: Scene):
     """A pycolmap.Reconstruction with the scene's cameras, frames (image ids 1..N in frame order) and
-    points with tracks: a frame keeps its SfM observations (``meta['observations']``), any other frame
+    points with tracks: a frame keeps its SfM observations (``Scene.observations``), any other frame
     (a synthesized view, or a scene read without tracks) observes the points that project into it."""
     import pycolmap
 
@@ -315,7 +302,7 @@ def reconstruction_from_scene(scene: Scene):
         rec.add_image_with_trivial_frame(
             pycolmap.Image(name=f.name, camera_id=int(f.camera_id), image_id=i + 1, points2D=pts2d), T
         )
-    colors = scene.meta.get("point_colors")
+    colors = scene.point_colors
     if colors is None or len(colors) != len(points):
         colors = np.full((len(points), 3), 128, dtype=np.uint8)
     colors = np.concatenate([np.asarray(colors, dtype=np.uint8), np.full((len(extra), 3), 128, np.uint8)])
@@ -335,7 +322,7 @@ def frame_observations(scene: Scene, i: int, pycam) -> tuple[np.ndarray, np.ndar
     f, cam = scene.frames[i], scene.camera(i)
     if scene.points is None or not len(scene.points):
         return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
-    stored = (scene.meta.get("observations") or {}).get(f.name)
+    stored = scene.observations.get(f.name)
     if stored is not None and not f.synthetic and len(stored.point) and stored.point.max() < len(scene.points):
         s = np.array([cam.width / stored.size[0], cam.height / stored.size[1]])
         return stored.point, stored.xy * s

@@ -189,7 +189,7 @@ def synthetic_ext(real_names: Sequence[str]) -> str:
 
 def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     """The dense scene as written: frames in :func:`safe_order`, renamed with rank prefixes; its split;
-    and each written frame's original name. Observations in ``meta`` follow the renaming."""
+    and each written frame's original name. Observations follow the renaming."""
     frames = sorted(scene.frames, key=lambda f: f.index)
     flags = [f.synthetic for f in frames]
     order = safe_order(flags)
@@ -221,11 +221,8 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     train = tuple(n for f, n in zip(frames, names) if f.name not in held)
     split = Split(train=train, val=tuple(test), test=tuple(test), rule=rule, positional_safe=safe)
     renamed = [replace(f, name=n) for f, n in zip(frames, names)]
-    meta = dict(scene.meta)
-    obs = meta.get("observations")
-    if obs:
-        meta["observations"] = {n: obs[f.name] for f, n in zip(frames, names) if f.name in obs}
-    return replace(scene, frames=renamed, meta=meta), split, [f.name for f in frames]
+    obs = {n: scene.observations[f.name] for f, n in zip(frames, names) if f.name in scene.observations}
+    return replace(scene, frames=renamed, observations=obs), split, [f.name for f in frames]
 
 
 def write_split_files(folder: Path, split: Split) -> None:
@@ -331,11 +328,11 @@ def write_masks(folder: Path, scene: Scene, factors: Sequence[int] = ()) -> None
         conf = np.ones((h, w), np.float32) if conf is None else conf
         mask = Image.fromarray(mask_values(conf), mode="L")
         if mask.size != (w, h):
-            mask = mask.resize((w, h), Image.NEAREST)
+            mask = mask.resize((w, h), Image.Resampling.NEAREST)
         for k, sub in [(1, MASKS)] + [(k, f"{MASKS}_{k}") for k in factors]:
             dst = Path(folder) / sub / mask_name(f.name)
             dst.parent.mkdir(parents=True, exist_ok=True)
-            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.NEAREST)).save(dst)
+            (mask if k == 1 else mask.resize(downscaled_size(w, h, k), Image.Resampling.NEAREST)).save(dst)
 
 
 # ---- reading masks back -----------------------------------------------------------------------------

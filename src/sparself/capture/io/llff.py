@@ -46,6 +46,10 @@ def _load_array(path: Path) -> np.ndarray:
         raise InputError(f"{path}: expected an (N, 17) array of LLFF poses and bounds, got shape {arr.shape}")
     if not np.issubdtype(arr.dtype, np.number):
         raise InputError(f"{path}: expected numbers, got dtype {arr.dtype}")
+    if np.iscomplexobj(arr):
+        if np.any(arr.imag != 0):
+            raise InputError(f"{path}: expected real numbers, got complex values (dtype {arr.dtype})")
+        arr = arr.real
     arr = arr.astype(np.float64)
     check_finite(arr, str(path))
     return arr
@@ -93,7 +97,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
 
     If the images are smaller than the stored [H, W] (a downscaled ``images_4`` folder passed as
     ``images``), focal lengths are scaled to them, as NeRF's loader does.
-    ``Scene.bounds`` = (min near, max far); per-view bounds are in ``meta['frame_bounds']`` by name.
+    ``Scene.bounds`` = (min near, max far); per-view bounds are in ``frame_bounds`` by name.
     Masks beside the images (``masks/`` for ``images/``, ``masks_4/`` for ``images_4/``; ``<stem>.png`` for
     every image) become the frames' ``mask`` (:func:`sparself.io.dense.read_masks_beside`).
     """
@@ -107,11 +111,14 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     check_names([p.name for p in files], image_dir)
     if len(files) != len(arr):
         raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
-    frames, cams, frame_bounds, scaled = [], [], {}, {}
+    frames, cams, frame_bounds = [], [], {}
+    scaled: dict[tuple, list[str]] = {}  # image size -> the views scaled to it
     for i, (row, img) in enumerate(zip(arr, files)):
         m = row[:15].reshape(3, 5)
         R = m[:, :3]
-        if abs(np.linalg.det(R) - 1.0) > 1e-3 or np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+        with np.errstate(all="ignore"):  # huge or tiny entries: the check below fails them (NaN included)
+            rotation = abs(np.linalg.det(R) - 1.0) <= 1e-3 and np.abs(R.T @ R - np.eye(3)).max() <= 1e-3
+        if not rotation:
             raise InputError(
                 f"{npy}: row {i} ({img.name}): rotation columns are not orthonormal "
                 "(det must be +1 in [down, right, back] order)"
@@ -124,9 +131,10 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
                 f"got H={h}, W={w}, focal={focal}, near={near}, far={far}"
             )
         iw, ih = image_size_of(img)
-        sx, sy = iw / w, ih / h
+        with np.errstate(over="ignore"):  # a tiny H or W gives inf, which the aspect check rejects
+            sx, sy = iw / w, ih / h
         if (iw, ih) != (int(round(w)), int(round(h))):
-            if abs(sx - sy) > 0.02:
+            if not abs(sx - sy) <= 0.02:
                 raise InputError(f"{img}: image is {iw}x{ih} but {npy.name} says {w:g}x{h:g} (aspect differs)")
             scaled.setdefault((iw, ih, w, h, sx), []).append(img.name)
         cams.append(Camera("SIMPLE_PINHOLE", iw, ih, (focal * sx, iw / 2.0, ih / 2.0)))
@@ -149,7 +157,12 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         f.camera_id = cid
     bounds = (float(arr[:, 15].min()), float(arr[:, 16].max()))
     scene = Scene(
-        cameras=cameras, frames=frames, bounds=bounds, source=npy, meta={"format": "llff", "frame_bounds": frame_bounds}
+        cameras=cameras,
+        frames=frames,
+        bounds=bounds,
+        source=npy,
+        source_format="llff",
+        frame_bounds=frame_bounds,
     )
     return read_masks_beside(scene, image_dir)
 
@@ -174,11 +187,11 @@ def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:
 def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     """(N, 17) LLFF rows in image-name order and the frame index of each row.
 
-    Near/far per view: ``meta['frame_bounds']`` if it has the frame, else from the sparse points in
+    Near/far per view: ``frame_bounds`` if it has the frame, else from the sparse points in
     view, else the scene's global :meth:`Scene.depth_bounds`.
     """
     order = frame_name_order(scene)
-    known = scene.meta.get("frame_bounds") or {}
+    known = scene.frame_bounds
     global_bounds = None
     rows, approx = [], []
     for i in order:

@@ -75,7 +75,7 @@ def read_middlebury(path: Path) -> Scene:
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
-    return order_frames(Scene(cameras=cameras, frames=frames, source=par, meta={"format": "middlebury"}))
+    return order_frames(Scene(cameras=cameras, frames=frames, source=par, source_format="middlebury"))
 
 
 def write_middlebury(scene: Scene, path: Path) -> Path:

@@ -48,7 +48,7 @@ def _read_camera(d: dict, img: Path | None, where: str) -> Camera:
     else:
         raise InputError(f"{where}: no image size (w, h) and no image to read it from")
     if "fl_x" in d or "fl_y" in d:
-        fx = float(d.get("fl_x", d.get("fl_y")))
+        fx = float(d["fl_x"] if "fl_x" in d else d["fl_y"])
         fy = float(d.get("fl_y", fx))
     elif "camera_angle_x" in d:
         fx = 0.5 * w / math.tan(0.5 * float(d["camera_angle_x"]))
@@ -159,16 +159,23 @@ def read_nerfstudio(path: Path, *, require_images: bool = True) -> Scene:
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
-    scene = Scene(cameras=cameras, frames=frames, source=js, meta={"format": "nerfstudio"})
+    scene = Scene(cameras=cameras, frames=frames, source=js, source_format="nerfstudio")
     if isinstance(meta.get("ply_file_path"), str) and (js.parent / meta["ply_file_path"]).is_file():
         scene.points, colors = _read_ply(js.parent / meta["ply_file_path"])
         if colors is not None:
-            scene.meta["point_colors"] = colors
+            scene.point_colors = colors
     return order_frames(scene)
 
 
 def _intrinsics(cam: Camera) -> dict:
-    d = {"fl_x": cam.fx, "fl_y": cam.fy, "cx": cam.cx, "cy": cam.cy, "w": cam.width, "h": cam.height}
+    d: dict[str, float | str] = {
+        "fl_x": cam.fx,
+        "fl_y": cam.fy,
+        "cx": cam.cx,
+        "cy": cam.cy,
+        "w": cam.width,
+        "h": cam.height,
+    }
     p = cam.params
     if cam.model in ("SIMPLE_PINHOLE", "PINHOLE"):
         d["camera_model"] = "OPENCV"
@@ -225,7 +232,7 @@ def write_nerfstudio(
     out_dir.mkdir(parents=True, exist_ok=True)
     d = transforms_dict(scene, image_prefix, split, masks)
     if "ply_file_path" in d:
-        _write_ply(out_dir / d["ply_file_path"], np.asarray(scene.points), scene.meta.get("point_colors"))
+        _write_ply(out_dir / d["ply_file_path"], np.asarray(scene.points), scene.point_colors)
     out = out_dir / FILENAME
     out.write_text(json.dumps(d, indent=2))
     return out

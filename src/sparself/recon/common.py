@@ -1,0 +1,71 @@
+"""What the reconstructors share and no one of them owns: a fit's settings and scene (:func:`prepare_fit`),
+its thread budget, the 3DGS photometric loss and random points in the cameras' frusta (both 3DGS paths)."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+
+import numpy as np
+import torch
+
+from sparself.capture.scene import Scene
+from sparself.core.errors import ConfigError, InputError
+
+
+def prepare_fit(scene: Scene, config_cls, config, overrides: dict, what: str):
+    """(scene, config) for a reconstructor's ``fit``: keyword overrides replace config fields (unknown
+    ones raise ConfigError), an empty scene raises InputError, ``max_side`` resizes the scene."""
+    cfg = config or config_cls()
+    unknown = sorted(set(overrides) - set(cfg.__dict__))
+    if unknown:
+        raise ConfigError(f"{what}: unknown setting(s) {', '.join(unknown)}")
+    if overrides:
+        cfg = dataclasses.replace(cfg, **overrides)
+    if len(scene) == 0:
+        raise InputError(f"{what}: the scene has no frames to train on")
+    if cfg.max_side:
+        scene = scene.resized(cfg.max_side)
+    return scene, cfg
+
+
+@contextlib.contextmanager
+def at_most_threads(n: int):
+    """torch uses at most n threads (and at least 1) inside; the previous count is restored after."""
+    prev = torch.get_num_threads()
+    torch.set_num_threads(max(1, min(n, prev)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(prev)
+
+
+def frustum_points(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(about n, 3) random world points: n / len(scene) per camera (at least 1), uniform over its image
+    and log-uniform in depth between the scene's depth bounds."""
+    near, far = scene.depth_bounds()
+    pts = []
+    per = max(1, n // max(len(scene), 1))
+    for i, f in enumerate(scene.frames):
+        cam = scene.camera(i)
+        u = rng.uniform(0, cam.width, per)
+        v = rng.uniform(0, cam.height, per)
+        z = np.exp(rng.uniform(np.log(near), np.log(far), per))
+        pc = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
+        pts.append((pc - f.pose.tvec) @ f.pose.R)  # R^T (x - t)
+    return np.concatenate(pts)
+
+
+def photometric_loss(render, gt, ssim_lambda: float, weight=None):
+    """The 3DGS loss (1 - lambda) L1 + lambda (1 - SSIM) of (B, H, W, 3) images (kornia's SSIM map, 11-tap
+    Gaussian window, borders reflected). weight: per-pixel loss weights (H, W) (a frame's weight x its
+    confidence, :meth:`Scene.pixel_weight`) or None (all 1: the plain loss). Weighted, each term is the mean
+    over pixels of weight x the pixel's error, so a frame of weight w counts w times a real one and a pixel
+    of weight 0 has no gradient."""
+    from kornia.metrics import ssim
+
+    dssim = 1 - ssim(render.permute(0, 3, 1, 2), gt.permute(0, 3, 1, 2), 11)  # (B, 3, H, W)
+    if weight is None:
+        return (1 - ssim_lambda) * (render - gt).abs().mean() + ssim_lambda * dssim.mean()
+    l1 = (weight[None, :, :, None] * (render - gt).abs()).mean()
+    return (1 - ssim_lambda) * l1 + ssim_lambda * (weight[None, None] * dssim).mean()
