@@ -648,10 +648,11 @@ def test_existing_non_empty_output_is_refused(tmp_path, capsys, cmd):
 
 def test_overwrite_replaces_an_existing_output(tmp_path, capsys):
     scene = write_posed(tmp_path / "scene", make_scene(6), "llff")
-    (tmp_path / "plan.json").write_text("old")
+    assert run(capsys, "plan", scene, "--out", tmp_path / "plan.json", "--n-mid", "1", "-q")[0] == 0  # an old plan
     code, _, err = run(capsys, "plan", scene, "--out", tmp_path / "plan.json", "--overwrite", "-q")
     assert code == 0, err
     assert json.loads((tmp_path / "plan.json").read_text())["format"] == "sparself-plan"
+    assert len(json.loads((tmp_path / "plan.json").read_text())["frames"]) > 3  # the new plan, not the old
     assert listing(tmp_path) == ["plan.json", "scene"]
 
 
@@ -1002,3 +1003,21 @@ def test_memory_estimate_before_training(trained, caplog):
     with caplog.at_level("INFO", logger="sparself"):
         log_memory_estimate(est, torch.device("cpu"), available=8 * 2**30)
     assert [r.levelname for r in caplog.records] == ["WARNING"] and "lower --size" in caplog.records[0].getMessage()
+
+
+@pytest.mark.parametrize("what, file", [("IMAGE_ID", "images.txt"), ("CAMERA_ID", "cameras.txt")])
+def test_a_repeated_id_in_a_text_model_is_one_line(tmp_path, capsys, what, file):
+    folder = write_posed(tmp_path / "scene", make_scene(4), "colmap_text")
+    path = folder / "sparse" / "0" / file
+    lines = path.read_text().splitlines()
+    data = [i for i, ln in enumerate(lines) if ln.strip() and not ln.startswith("#")]
+    first, second = (data[0], data[2]) if file == "images.txt" else (data[0], data[0])
+    if file == "cameras.txt":
+        lines.insert(first + 1, lines[first])  # the one camera given twice
+        second = first + 1
+    else:
+        lines[second] = "1 " + lines[second].split(" ", 1)[1]  # the second image takes the first one's id
+    path.write_text("\n".join(lines) + "\n")
+    code, _, err = run(capsys, "info", folder)
+    line = one_error(code, err, "info", str(path), f"{what} 1")
+    assert f"line {second + 1}" in line and f"line {first + 1}" in line and "Check failed" not in line

@@ -140,9 +140,9 @@ def test_split_lists_agree_with_synthetic_flags(written):
     split = {k: [Path(p).name for p in tj[f"{k}_filenames"]] for k in ("train", "val", "test")}
     assert set(split["train"]) | set(split["test"]) == set(flag) and not set(split["train"]) & set(split["test"])
     assert split["val"] == split["test"] and not any(flag[n] for n in split["test"])
-    # every 8th real photo in capture order: the 1st and 9th of 10
-    src = {fr["name"]: fr["source_name"] for fr in sj["frames"]}
-    assert [src[n] for n in split["test"]] == ["000.jpg", "008.jpg"]
+    # every 8th of ALL names in sorted order, as gsplat, NeRF/LLFF, 3DGS and nerfstudio pick them: real photos
+    assert split["test"] == sorted(flag)[::8] and len(split["test"]) == 3
+    assert sj["split"]["test"] == split["test"] and "every 8th image of all" in sj["split"]["rule"]
     for k, fname in (("train", "train_list.txt"), ("val", "val_list.txt"), ("test", "test_list.txt")):
         assert (folder / fname).read_text().split() == split[k]
     assert (folder / "sparse" / "0" / "test.txt").read_text().split() == split["test"]
@@ -438,6 +438,35 @@ def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, 
     for k in (2, 4, 8):
         assert sorted(p.name for p in (folder / f"images_{k}").iterdir()) == names
     _check_masks(folder, sj)
+
+
+@pytest.mark.parametrize("test_split", [True, False])
+def test_test_photos_feed_neither_training_nor_synthesis(tmp_path, small_scene, tiny_cfg, test_split):
+    """By default the photos position-based loaders test (every 8th of all written images) are the test split
+    and are kept out of training and of every synthesized view (sparself.json names the photos that fed each
+    one); --no-test-split uses every photo and writes no test split."""
+    from sparself.pipeline import DensifyConfig, densify
+    from sparself.synthesis.plan import PlanConfig
+    from sparself.synthesis.run import load_run
+
+    cfg = DensifyConfig(train=tiny_cfg(epochs=1), plan=PlanConfig(n_mid=3, n_extra=2), test_split=test_split)
+    densify(small_scene, tmp_path / "out", cfg)
+    folder = tmp_path / "out" / "scene"
+    sj = json.loads((folder / "sparself.json").read_text())
+    src = {fr["name"]: fr["source_name"] for fr in sj["frames"]}
+    test = [src[n] for n in sj["split"]["test"]]
+    trained = set(load_run(tmp_path / "out" / "run").meta.sources)
+    fed = {n for fr in sj["frames"] if fr["synthetic"] for n in fr["made_from"]["warped"] + fr["made_from"]["sequence"]}
+    assert all(len(fr["made_from"]["warped"]) >= 2 for fr in sj["frames"] if fr["synthetic"])
+    if test_split:
+        names = sorted(p.name for p in (folder / "images").iterdir())
+        assert sj["split"]["test"] == names[::8] and (folder / "test_list.txt").read_text().split() == names[::8]
+        assert len(test) == 2 and not set(test) & trained and not set(test) & fed
+        assert trained | set(test) == {f.name for f in small_scene.frames}
+    else:
+        assert test == [] and "none" in sj["split"]["rule"] and not (folder / "test_list.txt").exists()
+        assert trained == {f.name for f in small_scene.frames} and fed == trained
+        assert "test_filenames" not in json.loads((folder / "transforms.json").read_text())
 
 
 def _check_masks(folder: Path, sj: dict) -> None:

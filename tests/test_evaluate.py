@@ -242,7 +242,7 @@ def test_cli_evaluate_end_to_end_with_the_real_network(tmp_path, capsys):
 
 
 def test_missing_imagenet_weights_are_reported_once_per_evaluation(tmp_path, monkeypatch, caplog):
-    """Two seeds train two networks, but the "no ImageNet weights" warning is said once."""
+    """Two seeds train two networks, but the "no ImageNet weights" note is said once."""
     import logging
 
     import torch
@@ -250,8 +250,8 @@ def test_missing_imagenet_weights_are_reported_once_per_evaluation(tmp_path, mon
     torch.set_num_threads(1)
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
     scene = _capture(tmp_path / "cap_images")
-    make = network_factory(EvalConfig(size=32, epochs=1, seeds=2, progress=False))
-    with caplog.at_level(logging.WARNING, logger="sparself"):
+    with caplog.at_level(logging.INFO, logger="sparself"):  # a note (INFO): it holds on every offline run
+        make = network_factory(EvalConfig(size=32, epochs=1, seeds=2, progress=False))
         for seed in (0, 1):
             make(scene, seed)
     said = [r for r in caplog.records if "no ImageNet weights" in r.getMessage()]

@@ -538,7 +538,7 @@ def test_messages_about_many_files_are_collected():
     ]
     assert shown == ["00.png: distortion dropped", "no bounds; guessing", "a.png: RGBA image converted"]
     assert [r.getMessage() for r in rep.rest()] == [
-        "01.png, 02.png, 03.png, 04.png, 05.png, ... (7 more): distortion dropped"
+        "01.png, 02.png, 03.png, 04.png, 05.png and 2 more: distortion dropped"
     ]
 
 
@@ -592,3 +592,14 @@ def test_output_cut_off_by_a_closed_pipe_is_no_traceback(tmp_path):
     proc = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=120)
     assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr
     assert proc.stderr.strip().splitlines()[-1] in ("status 141", "status 0"), proc.stderr
+
+
+def test_batch_densify_names_each_missing_capture_plainly(tmp_path, capsys):
+    """A densify unit is one capture: its failure names the capture, with no seed, each path once."""
+    missing = [tmp_path / f"nope{i}" for i in range(1, 5)]
+    (tmp_path / "m.txt").write_text("".join(f"{p}\n" for p in missing))
+    code, _, err = run(capsys, "batch", "densify", tmp_path / "m.txt", "--out", tmp_path / "b", "--local", "-q")
+    assert code == 1
+    failed = [ln for ln in err.splitlines() if ln.startswith("  failed: ")]
+    assert failed == [f"  failed: {p.name}: {p}: no such folder" for p in missing], err
+    assert "seed" not in err and "more)" not in err

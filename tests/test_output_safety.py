@@ -367,3 +367,18 @@ def test_batch_never_writes_over_a_capture_or_its_manifest(root, capsys, monkeyp
         case="--out holds the manifest [batch]",
         overwrite=False,
     )
+
+
+@pytest.mark.parametrize("cmd", ["train", "densify", "plan"])
+def test_a_scene_with_linked_photos_never_writes_into_the_photo_folder(root, capsys, cmd):
+    """A scene written with --link-images holds links to the photos: the folder they point to is an input."""
+    from planescene import on_disk
+    from sparself.capture.io import write_scene
+
+    photos = root / "p10"
+    scene = on_disk(make_scene(6), photos)
+    write_scene(scene, root / "lk", images="link")
+    assert (root / "lk" / "images" / scene.frames[0].name).is_symlink()
+    out = photos / "images" / ("plan.json" if cmd == "plan" else "here")
+    line = refused(capsys, root, cmd, [cmd, root / "lk", "--out", out], "lies inside the scene's image folder")
+    assert str(photos / "images") in line

@@ -259,6 +259,52 @@ def test_name_order_that_is_not_capture_order_uses_camera_positions():
     assert check_poses(flipped(shuffled, [9])).names == ["09.png"]
 
 
+def mirrored_across_the_object(scene: Scene, idx: list[int]) -> Scene:
+    """Cameras ``idx`` registered on the far side of the object: centre turned 180 deg about the vertical
+    through the object, looking at it from there (how SfM flips a photo of a rotationally symmetric object)."""
+    frames = list(scene.frames)
+    for i in idx:
+        f = frames[i]
+        c = f.pose.center * np.array([-1.0, 1.0, -1.0])
+        z = -c / np.linalg.norm(c)
+        x = np.cross([0.0, -1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        frames[i] = Frame(f.name, Pose.from_center(rotmat_to_quat(np.stack([x, np.cross(z, x), z])), c), 1, f.index)
+    return Scene(scene.cameras, frames)
+
+
+def can_orbit(n: int = 25, elevation_deg: float = 15.0) -> Scene:
+    """A smooth orbit of a can on a tiled floor: n photos all round, looking down at it by elevation_deg."""
+    frames = []
+    e = np.deg2rad(elevation_deg)
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        c = 4.0 * np.array([np.cos(e) * np.cos(a), -np.sin(e), np.cos(e) * np.sin(a)])  # y points down
+        z = -c / np.linalg.norm(c)
+        x = np.cross([0.0, -1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        frames.append(
+            Frame(
+                f"IMG_{i + 1}.jpg", Pose.from_center(rotmat_to_quat(np.stack([x, np.cross(z, x), z])), c), 1, float(i)
+            )
+        )
+    return Scene({1: Camera.pinhole(W, H, 50.0)}, frames)
+
+
+def test_photos_flipped_across_a_symmetric_object_are_named():
+    """25 photos of a smooth orbit in name order; SfM put three of them on the far side of the object, each
+    ~150 deg from both its neighbours. Their mirrored places sit between other photos, where their viewing
+    directions fit, so ordering by position hides them: the names are the capture order, minus these three."""
+    s = mirrored_across_the_object(can_orbit(), [4, 12, 19])
+    seq = [s.frames[i].pose.R[2] for i in (3, 4, 5)]
+    assert all(140 < np.degrees(np.arccos(np.clip(seq[1] @ d, -1, 1))) < 160 for d in (seq[0], seq[2]))
+    c = check_poses(s)
+    assert c.names == ["IMG_5.jpg", "IMG_13.jpg", "IMG_20.jpg"], c
+    assert not c.order and not c.breaks
+    assert all(140 <= int(r.reasons[0].split()[1]) <= 160 for r in c.suspects), c.suspects  # "looks 147 deg away"
+    assert check_poses(can_orbit()).summary() == "pose check: no suspect photos"
+
+
 def test_photos_on_no_path_skip_the_jump_check():
     """Cameras anywhere, looking anywhere: no order to check against, so nothing is named."""
     import cv2

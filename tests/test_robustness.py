@@ -192,7 +192,8 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
 
 def test_leftovers_of_a_killed_run_are_removed_by_the_next_one(tmp_path):
     """SIGKILL runs no cleanup, so its hidden temporary folder stays; the next run writing the same output
-    removes it (its process is dead) but keeps the temporary folder of a run that is still alive."""
+    removes it (its process is dead) but keeps the temporary folder of a process that is still alive (here a
+    scratch folder: a second writer of the output itself is refused by its lock)."""
     from sparself.core.outputs import atomic_dir
 
     out = tmp_path / "out"
@@ -203,7 +204,8 @@ def test_leftovers_of_a_killed_run_are_removed_by_the_next_one(tmp_path):
     )
     proc = subprocess.Popen([sys.executable, "-c", code, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "ready"
-    live = subprocess.Popen([sys.executable, "-c", code, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)
+    scratch = code.replace("atomic_dir", "scratch_dir").replace("[1]))", "[1]), 'sfm')")
+    live = subprocess.Popen([sys.executable, "-c", scratch, str(out)], env=ENV, stdout=subprocess.PIPE, text=True)
     assert live.stdout.readline().strip() == "ready"
     proc.send_signal(signal.SIGKILL)
     proc.wait()

@@ -11,13 +11,36 @@ from pathlib import Path
 
 import pytest
 
-from test_bad_input import listing, make_scene, need, write_posed
+from test_bad_input import listing, make_scene, need, write_photos, write_posed
 from test_robustness import DENSIFY, ENV, TRAIN, cli
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Path:
     return write_posed(tmp_path_factory.mktemp("sig") / "scene", make_scene(6), "llff")
+
+
+@pytest.fixture(scope="module")
+def colmap_scene(tmp_path_factory) -> Path:
+    """Read through pycolmap, whose import installs a native SIGTERM handler (a C++ stack, no cleanup)."""
+    return write_posed(tmp_path_factory.mktemp("sigc") / "scene", make_scene(6), "colmap")
+
+
+def _sigterm_under_timeout(argv: list, ready, what: str) -> str:
+    """Run ``sparself argv`` under ``timeout``, send SIGTERM once ``ready()``; -> stderr (exit 143 checked)."""
+    proc = subprocess.Popen(
+        ["timeout", "-s", "KILL", "300", *cli(*argv)],
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    _wait_for(proc, ready, what)
+    subprocess.run(["pkill", "-TERM", "-P", str(proc.pid)], check=True)  # the sparself under timeout
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert "Traceback" not in err and "stack trace" not in err and "Aborted" not in err, err
+    return err
 
 
 def _wait_for(proc, cond, what: str) -> None:
@@ -89,3 +112,35 @@ def test_in_process_main_restores_the_signal_handlers(tmp_path, capsys):
     main(["info", str(tmp_path / "missing"), "-q"])
     assert {s: signal.getsignal(s) for s in before} == before
     assert "no such file or folder" in capsys.readouterr().err
+
+
+def test_sigterm_on_a_colmap_scene_is_ctrl_c_in_densify(colmap_scene, tmp_path):
+    res = tmp_path / "res"
+    res.mkdir()
+    argv = ["densify", colmap_scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2", "--n-extra", "1"]
+    err = _sigterm_under_timeout(
+        argv + DENSIFY, lambda: list(res.glob(".out.tmp-*/run/train_log.csv")), "training started"
+    )
+    assert err.splitlines()[-1] == (
+        f"sparself densify: interrupted by SIGTERM; nothing was written to {res / 'out'}; run the command again"
+    )
+    assert listing(res) == []
+
+
+def test_sigterm_on_a_colmap_scene_is_ctrl_c_in_train(colmap_scene, tmp_path):
+    run = tmp_path / "run"
+    argv = ["train", colmap_scene, "--out", run, "--epochs", "500", *TRAIN]
+    err = _sigterm_under_timeout(argv, lambda: (run / "checkpoint.pt").exists(), "the first checkpoint")
+    assert err.splitlines()[-1].startswith("sparself train: interrupted by SIGTERM; the checkpoint at epoch")
+
+
+def test_sigterm_during_sfm_removes_its_scratch_folder(tmp_path):
+    """SfM's database and undistorted copies live beside --out, named as its temporary folders (a later run
+    removes them if this one is killed), and SIGTERM removes them with the rest."""
+    write_photos(tmp_path / "photos", 12, size=(640, 480))
+    res = tmp_path / "res"
+    res.mkdir()
+    argv = ["poses", tmp_path / "photos", "--out", res / "out"]
+    err = _sigterm_under_timeout(argv, lambda: list(res.glob(".out.tmp-*-sfm-*/*")), "SfM started")
+    assert err.splitlines()[-1].startswith("sparself poses: interrupted by SIGTERM"), err
+    assert listing(res) == []

@@ -24,7 +24,8 @@ log = logging.getLogger(__name__)
 class Progress:
     """One bar for the whole batch: units done / running / failed, elapsed and estimated time left."""
 
-    def __init__(self, total: int, enabled: bool | None) -> None:
+    def __init__(self, total: int, enabled: bool | None, kind: str = "densify") -> None:
+        self.kind = kind
         self.bar = tqdm(
             total=total,
             desc="batch",
@@ -40,7 +41,7 @@ class Progress:
             self.failed += result.status != "ok"
             self.bar.update(1)
             if result.status != "ok":
-                log.warning("%s seed %d failed: %s", result.capture, result.seed, result.error)
+                log.warning("%s failed: %s", result.label(self.kind), result.error)
         self.bar.set_postfix_str(f"done {self.bar.n - self.failed}, running {running}, failed {self.failed}")
 
     def close(self) -> None:
@@ -50,7 +51,7 @@ class Progress:
 def run_units(units: list[Unit], cfg: BatchConfig, out: Path) -> list[UnitResult]:
     """Run the units (locally or on Ray) behind one progress bar; on an interruption the running units
     are cancelled and their temporary folders removed before KeyboardInterrupt goes on up."""
-    bar = Progress(len(units), cfg.progress)
+    bar = Progress(len(units), cfg.progress, units[0].kind if units else "densify")
     try:
         if cfg.local:
             with signals_interrupt(reset=False):

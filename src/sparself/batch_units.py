@@ -101,6 +101,10 @@ class UnitResult:
     synthesized: int | None = None
     skipped: bool = False
 
+    def label(self, kind: str) -> str:
+        """The capture, with the seed for an evaluation unit ('bird (seed 1)'; densify has one unit each)."""
+        return f"{self.capture} (seed {self.seed})" if kind == "evaluate" else self.capture
+
 
 @dataclass
 class BatchResult:

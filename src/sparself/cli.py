@@ -18,7 +18,9 @@ from pathlib import Path
 from sparself import __version__
 from sparself.core.errors import SparselfError
 from sparself.core.interrupts import signals_interrupt, stopped_by
+from sparself.core.locks import output_lock
 from sparself.core.logs import BarSafeHandler, Repeats
+from sparself.core.space import os_error_line
 
 log = logging.getLogger("sparself")
 
@@ -66,7 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     pkg.setLevel(level)
     pkg.propagate = False
     try:
-        with signals_interrupt():
+        # one writer per output for the whole command: a second one into the same --out is refused
+        with signals_interrupt(), output_lock(getattr(args, "out", None)):
             return int(args.func(args) or 0)
     except SparselfError as e:
         if args.debug:
@@ -81,6 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `sparself info SCENE | head`: the reader has gone, which is no error of ours
         _drop_stdout()
         return 141  # 128 + SIGPIPE, what a shell reports for a command cut off by its pipe
+    except OSError as e:  # a full disk, a path part over 255 bytes: one line; anything else is a bug
+        line = os_error_line(e, getattr(args, "out", None))
+        if line is None or args.debug:
+            raise
+        print(f"sparself {args.command}: error: {line}", file=sys.stderr)
+        return 2
     finally:
         for rec in repeats.rest():
             handler.handle(rec)
@@ -466,12 +475,28 @@ def _add_densify(sub) -> None:
     p.set_defaults(func=_run_densify)
 
 
+def _positive(text: str) -> int:
+    """A whole number above 0 (argparse reports anything else in one line, before any work)."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n <= 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number of pixels above 0, got {text!r}")
+    return n
+
+
 def _densify_options(p: argparse.ArgumentParser) -> None:
-    """The plan, the output size and the training options: shared by `densify` and `batch densify`."""
+    """The plan, the test split, the output size and the training options: shared by `densify` and
+    `batch densify`."""
+    from sparself.core.options import add_options
+    from sparself.pipeline import DensifyConfig
+
     _plan_options(p)
+    add_options(p, DensifyConfig, skip=tuple(n for n in DensifyConfig.__dataclass_fields__ if n != "test_split"))
     p.add_argument(
         "--out-size",
-        type=int,
+        type=_positive,
         default=None,
         help="long side in px of the written scene and of training (default: as read)",
     )
@@ -494,6 +519,7 @@ def _densify_config(args, **kw):
         out_size=args.out_size,
         downscaled=args.downscaled,
         triangulate=args.triangulate,
+        test_split=args.test_split,
         **kw,
     )
 
@@ -610,7 +636,7 @@ def _run_batch(args) -> int:
         f"({sum(u.skipped for u in done)} by an earlier run), {len(res.failed)} failed -> {args.out / 'report.md'}"
     )
     for u in res.failed:
-        print(f"  failed: {u.capture} (seed {u.seed}): {u.error}", file=sys.stderr)
+        print(f"  failed: {u.label(args.kind)}: {u.error}", file=sys.stderr)
     return 1 if res.failed else 0
 
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from sparself.capture import io as sio
+from sparself.capture.io.dense import MadeFrom, positional_test
 from sparself.capture.plot import plot_cameras
 from sparself.capture.scene import Scene, preloaded
 from sparself.capture.sfm import SfmConfig, recover_poses
@@ -16,11 +17,12 @@ from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
 from sparself.core.options import option
 from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
+from sparself.core.space import MB, check_free_space, files_size
 from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, at_check_size, check_fit, self_check, weakest_plan
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
 from sparself.synthesis.run import Run
 from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
-from sparself.synthesis.train import train
+from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -44,10 +46,16 @@ class DensifyConfig:
         True,
         "triangulate sparse points for a capture that has none, from its real photos at their known poses",
     )
+    test_split: bool = option(
+        True,
+        "write a test split: the photos position-based loaders test (every 8th of all images) feed neither "
+        "training nor synthesis (off: every photo feeds both and no test split is written)",
+    )
 
 
-def read_input(path: Path, cfg: DensifyConfig) -> Scene:
-    """A scene from anything read_scene accepts, else a folder of photos posed with SfM."""
+def read_input(path: Path, cfg: DensifyConfig, out: Path | None = None) -> Scene:
+    """A scene from anything read_scene accepts, else a folder of photos posed with SfM (its scratch
+    folder beside ``out``)."""
     try:
         sio.detect_format(path)
     except InputError:
@@ -55,7 +63,7 @@ def read_input(path: Path, cfg: DensifyConfig) -> Scene:
     else:
         return sio.read_scene(path)  # a broken pose file is reported, not silently replaced by SfM
     log.info("%s: no poses found; recovering them with structure from motion", path)
-    scene, _ = recover_poses(path, cfg.sfm)  # it logs what was registered and what not
+    scene, _ = recover_poses(path, cfg.sfm, beside=out)  # it logs what was registered and what not
     return scene
 
 
@@ -72,7 +80,7 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     out = Path(out)
     given = isinstance(photos_or_scene, Scene)
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
-    scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg)
+    scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg, out)
     check_output_dir(out, cfg.overwrite, scene_inputs(scene))  # before any training
     photos = scene  # at their own size: triangulation matches them at up to 800 px
     if cfg.out_size:
@@ -82,14 +90,26 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     # on the crop size, not on the image size
     long_side = max(max(c.width, c.height) for c in scene.cameras.values())
     tcfg = replace(cfg.train, size=long_side)
+    if cfg.test_split and not tcfg.holdout:
+        tcfg = replace(tcfg, holdout=test_positions(scene, targets))
+    check_holdout(tcfg.holdout, scene)
+    check_free_space(out, densify_bytes(photos, len(targets), cfg.downscaled))
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
         # points for the written scene (training and synthesis are the same with or without them) and the fits
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        planned, views = _views(run, scene, written, targets, cfg, tcfg.holdout)
+        planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout)
         dense = densify_scene(written, views.frames, views.images, views.confidence)
-        info = sio.DenseInfo("../run" if cfg.keep_run else None, "../plan.json", holdout, cfg.downscaled, views.record)
+        info = sio.DenseInfo(
+            "../run" if cfg.keep_run else None,
+            "../plan.json",
+            holdout,
+            cfg.downscaled,
+            cfg.test_split,
+            {f.name: made_from[f.name] for f in views.frames if f.name in made_from},
+            views.record,
+        )
         sio.write_scene_into(dense, tmp / "scene", dense=info)
         # the plan and a camera plot beside the scene, so users see where the new views are
         save_plan(tmp / "plan.json", planned, scene=scene, cfg=cfg.plan)
@@ -104,22 +124,50 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     return dense
 
 
-def _views(run: Run, scene: Scene, written: Scene, targets: list, cfg: DensifyConfig, holdout) -> tuple[list, Checked]:
-    """(the planned frames, the views to write): every view of the paper's plan with ``check.recon`` none;
+def test_positions(scene: Scene, targets: list) -> tuple[int, ...]:
+    """Positions in ``scene`` of the photos that position-based loaders will test in the written dense scene
+    (kept out of training and synthesis); none, with a warning, when too few photos would be left to train."""
+    names = positional_test(list(scene.frames) + [replace(t, synthetic=True) for t in targets]) or []
+    held = tuple(i for i, f in enumerate(scene.frames) if f.name in names)
+    if len(scene) - len(held) < MIN_TRAIN:
+        log.warning(
+            "%d photos: too few to keep the %d test photos out of training and synthesis; they feed both "
+            "(the test split is still written)",
+            len(scene),
+            len(held),
+        )
+        return ()
+    return held
+
+
+def densify_bytes(photos: Scene, n_new: int, downscaled: bool) -> int:
+    """About what ``densify`` writes: the photos, as many new views per photo as planned (a synthesized view
+    weighs about a photo), the images_2/4/8 copies (a third more) and the run's checkpoint."""
+    per_view = files_size(f.path for f in photos.frames) / max(len(photos), 1)
+    views = (len(photos) + n_new) * per_view * (4 / 3 if downscaled else 1)
+    return int(views + 64 * MB)
+
+
+def _views(
+    run: Run, scene: Scene, written: Scene, targets: list, cfg: DensifyConfig, holdout: tuple[int, ...]
+) -> tuple[list, Checked, dict[str, MadeFrom]]:
+    """(the planned frames, the views to write, the photos that fed each view): all synthesized from the photos
+    minus ``holdout`` (positions); every view of the paper's plan with ``check.recon`` none;
     else planned where the reconstruction is weak (``check.plan_mode`` weak) and kept only where they pay
     (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout)."""
     check = cfg.check
     if check.recon == "none":
         if check.plan_mode != "paper":
             log.info("--recon none: the paper's plan (planning where a reconstruction is weak needs one)")
-        syn = synthesize_with_confidence(run, scene, targets)
-        return targets, Checked(targets, syn.images, syn.confidence, None)
+        syn = synthesize_with_confidence(run, scene.without(holdout), targets)
+        return targets, Checked(targets, syn.images, syn.confidence, None), syn.sources_by_name(targets)
     inputs = written.without(holdout)
     if check.plan_mode == "weak":
         targets = weakest_plan(at_check_size(inputs, check), cfg.plan, check_fit(check))
-    final = synthesize_with_confidence(run, scene, targets)
+    final = synthesize_with_confidence(run, scene.without(holdout), targets)
     synth = lambda sc, tg, **_: synthesize_with_confidence(run, sc, tg)  # noqa: E731
-    return targets, self_check(inputs, targets, synth, final, check, check.plan_mode)
+    checked = self_check(inputs, targets, synth, final, check, check.plan_mode)
+    return targets, checked, final.sources_by_name(targets)
 
 
 def _with_points(scene: Scene, photos: Scene, holdout: tuple[str, ...]) -> Scene:

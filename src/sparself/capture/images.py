@@ -13,6 +13,7 @@ import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from sparself.core.errors import InputError
+from sparself.core.names import capture_key
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,8 @@ def image_files(folder: Path) -> list[Path]:
     # not a picture, copied beside every photo onto FAT/exFAT cards and network shares), .DS_Store, ...
     exts = image_extensions()
     return sorted(
-        p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in exts
+        (p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in exts),
+        key=lambda p: capture_key(p.name),
     )
 
 
@@ -74,7 +76,8 @@ def subfolders_with_images(folder: Path, max_depth: int = 3, limit: int = 5) -> 
 
 
 def list_images(folder: Path) -> list[Path]:
-    """Image files of a folder, sorted by name; hidden files (``._*``, ``.DS_Store``) are skipped, HEIC/HEIF
+    """Image files of a folder in capture order (:func:`sparself.core.names.capture_key`: IMG_2 before
+    IMG_10); hidden files (``._*``, ``.DS_Store``) are skipped, HEIC/HEIF
     photos are skipped with a warning saying how to convert them (read when pillow-heif is installed).
     Raises InputError if the folder is missing or has no images (naming sub-folders that hold some)."""
     folder = Path(folder)

@@ -112,12 +112,42 @@ def format_info(info: dict) -> str:
         f"{info.get('synthesized_views', 0)} synthesized)",
         f"image size:    {', '.join(info['sizes'])} (W x H)",
     ]
-    for cid, c in info["cameras"].items():
+    lines += _camera_lines(info["cameras"])
+    lines += _layout_lines(info)
+    return "\n".join(lines)
+
+
+SUMMARY_OVER = 4  # more cameras than this (phones vary the focal length: one per photo) are summarised
+
+
+def _camera_lines(cams: dict) -> list[str]:
+    """One block per camera, or past SUMMARY_OVER one line with the ranges (the full list is in --json)."""
+    if len(cams) > SUMMARY_OVER:
+        cs = list(cams.values())
+
+        def span(get, fmt: str = ".0f") -> str:
+            lo, hi = f"{min(map(get, cs)):{fmt}}", f"{max(map(get, cs)):{fmt}}"
+            return lo if lo == hi else f"{lo}–{hi}"
+
+        models = ", ".join(sorted({c["model"] for c in cs}))
+        return [
+            f"cameras:       {len(cs)} cameras ({models}), fx {span(lambda c: c['fx'])} px, "
+            f"fy {span(lambda c: c['fy'])} px (--json lists each)",
+            f"  field of view: {span(lambda c: c['fov_deg'][0], '.1f')} x {span(lambda c: c['fov_deg'][1], '.1f')} deg "
+            "(horizontal x vertical)",
+        ]
+    lines = []
+    for cid, c in cams.items():
         lines.append(
             f"camera {cid}:      {c['model']} {c['width']}x{c['height']}, "
             f"fx={c['fx']:.2f} fy={c['fy']:.2f} cx={c['cx']:.2f} cy={c['cy']:.2f} ({c['views']} views)"
         )
         lines.append(f"  field of view: {c['fov_deg'][0]:.2f} x {c['fov_deg'][1]:.2f} deg (horizontal x vertical)")
+    return lines
+
+
+def _layout_lines(info: dict) -> list[str]:
+    lines = []
     if info["views"]:
         cen = info["centers"]
         lines.append(f"camera centres: min {_vec(cen['min'])}  max {_vec(cen['max'])}  extent {_vec(cen['extent'])}")
@@ -132,7 +162,7 @@ def format_info(info: dict) -> str:
         )
     if info["points"]:
         lines.append(f"sparse points: {info['points']}")
-    return "\n".join(lines)
+    return lines
 
 
 def describe(scene_path: Path, as_json: bool = False) -> str:

@@ -31,7 +31,10 @@ photo is held by little.
 
 Capture order is file-name order, unless the camera centres walk more than ORDER_RATIO times the length of
 a nearest-neighbour path through them (as plan's ``--order auto`` decides, but by centres only, which a
-flipped rotation does not change): then neighbours are taken along that path. If even then more than a
+flipped rotation does not change): then neighbours are taken along that path. Except when a few photos
+explain it: a photo mirrored across the object lands far from its name neighbours, so a few flips make the
+names' path long; when the photos the names' order flags are at most a quarter and the others follow their
+names, the names are kept and those photos are the suspects. If even then more than a
 quarter of the steps are jumps, the jump check is skipped and the report says so.
 
 Camera plausibility: a horizontal or vertical field of view under 10 or over 150 degrees, or a focal
@@ -182,15 +185,32 @@ def check_poses(scene: Scene, stats: list[ImageStats] | None = None) -> PoseChec
     if n < 4:
         check.skipped = f"{n} photos: too few to compare neighbours"
     else:
-        order = _neighbour_order(scene.centers())
-        sub = scene.subset(list(order))
-        if not np.array_equal(order, np.arange(n)):
-            check.order = "file names do not follow the capture order; neighbours taken by camera position"
-        reasons = _jump_suspects(sub, check)
+        check, reasons = _jumps_in_best_order(scene)
     for name, why in _stat_reasons(stats or []).items():
         reasons.setdefault(name, []).extend(why)
     check.suspects = [Suspect(f.name, reasons[f.name]) for f in scene.frames if f.name in reasons]
     return check
+
+
+def _jumps_in_best_order(scene: Scene) -> tuple[PoseCheck, dict[str, list[str]]]:
+    """The jump check along the file names, unless they do not follow the capture: then along a path by
+    camera position. Flipped photos alone can make the names look unordered (each one jumped across the
+    object, far from its neighbours, while its mirrored place sits between two other photos, where its
+    viewing direction fits); so when the photos the names' order flags are few and the others follow
+    their names, the names are the capture order and those photos are the suspects."""
+    n = len(scene)
+    C = scene.centers()
+    order = _neighbour_order(C)
+    check = PoseCheck()
+    if np.array_equal(order, np.arange(n)):
+        return check, _jump_suspects(scene, check)
+    by_name = PoseCheck()
+    flagged = _jump_suspects(scene, by_name)
+    rest = [i for i, f in enumerate(scene.frames) if f.name not in flagged]
+    if flagged and not by_name.skipped and np.array_equal(_neighbour_order(C[rest]), np.arange(len(rest))):
+        return by_name, flagged
+    check.order = "file names do not follow the capture order; neighbours taken by camera position"
+    return check, _jump_suspects(scene.subset(list(order)), check)
 
 
 def _jump_suspects(scene: Scene, check: PoseCheck) -> dict[str, list[str]]:

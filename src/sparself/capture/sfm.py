@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import tempfile
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -36,6 +35,10 @@ from sparself.capture.io.colmap import scene_from_reconstruction
 from sparself.capture.posecheck import ImageStats, PoseCheck, Suspect, camera_warnings, check_poses
 from sparself.capture.scene import Scene
 from sparself.core.errors import InputError, RegistrationError
+from sparself.core.interrupts import import_native
+from sparself.core.names import capture_key
+from sparself.core.outputs import scratch_dir
+from sparself.core.space import MB, check_free_space, files_size
 
 log = logging.getLogger(__name__)
 
@@ -195,7 +198,7 @@ def _colmap_inputs(paths: Sequence[Path], work: Path) -> Path:
 
 @contextmanager
 def _quiet_colmap(debug: bool) -> Iterator[None]:
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     old = pycolmap.logging.minloglevel
     # 3 = FATAL only: its ERROR lines ("Failed to create any sparse model") would precede our own one-line
@@ -208,7 +211,7 @@ def _quiet_colmap(debug: bool) -> Iterator[None]:
 
 
 def _options(cfg: SfmConfig):
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = cfg.max_image_size if cfg.max_image_size > 0 else -1
@@ -246,7 +249,7 @@ def _options(cfg: SfmConfig):
 
 def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict[str, float]):
     """Features, matching and incremental mapping in ``work``. -> (reconstructions, database, image folder)."""
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     names = [p.name for p in paths]
     ext, match, verify, _ = _options(cfg)
@@ -293,7 +296,7 @@ def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict
 
 
 def _mapping(db: Path, images: Path, out: Path, cfg: SfmConfig, reseed: bool = True) -> dict:
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     out.mkdir()
     if reseed:  # a repair run starts from the same random state as the first mapping would from scratch
@@ -306,13 +309,18 @@ def _best(recs: dict):
 
 
 def recover_poses(
-    image_folder: Path, cfg: SfmConfig | None = None, *, names: Sequence[str] | None = None
+    image_folder: Path,
+    cfg: SfmConfig | None = None,
+    *,
+    names: Sequence[str] | None = None,
+    beside: Path | None = None,
 ) -> tuple[Scene, SfmReport]:
     """Recover intrinsics and poses of the photos in ``image_folder`` (all images, or ``names``), check them
     (:mod:`sparself.posecheck`: pose jumps between capture-order neighbours, weak photos, an implausible
     camera) and try to repair suspect poses (:func:`_repair`).
 
-    Runs in a temporary folder (removed afterwards); the input folder is only read.
+    Runs in a temporary folder (removed afterwards): beside the output ``beside``, named as its temporary
+    folders, else in the system temp; the input folder is only read.
     -> (scene of the registered images: frames sorted by name, paths into ``image_folder``, sparse points;
         report). Raises InputError for bad photos, RegistrationError if fewer than 3 are registered.
     """
@@ -332,24 +340,20 @@ def recover_poses(
     if cfg.deterministic:
         cfg = replace(cfg, num_threads=1)
     timings: dict[str, float] = {}
-    work = Path(tempfile.mkdtemp(prefix="sparself-sfm-"))
-    try:
-        with _quiet_colmap(cfg.debug):
-            recs, db, colmap_images = _colmap_run(paths, work, cfg, timings)
-            best = _best(recs)
-            if best is None:
-                raise RegistrationError(
-                    f"{folder}: COLMAP could not register any of the {len(names)} images "
-                    "(too little overlap or texture between the photos)"
-                )
-            t0 = time.perf_counter()
-            check = check_poses(_posed(best), image_stats(best))
-            repair = ""
-            if check.suspects:
-                best, check, repair = _repair(best, check, db, colmap_images, work, cfg, names)
-            timings["check"] = time.perf_counter() - t0
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    with scratch_dir(beside, "sfm") as work, _quiet_colmap(cfg.debug):
+        recs, db, colmap_images = _colmap_run(paths, work, cfg, timings)
+        best = _best(recs)
+        if best is None:
+            raise RegistrationError(
+                f"{folder}: COLMAP could not register any of the {len(names)} images "
+                "(too little overlap or texture between the photos)"
+            )
+        t0 = time.perf_counter()
+        check = check_poses(_posed(best), image_stats(best))
+        repair = ""
+        if check.suspects:
+            best, check, repair = _repair(best, check, db, colmap_images, work, cfg, names)
+        timings["check"] = time.perf_counter() - t0
     scene = scene_from_reconstruction(best, folder, source=folder)
     return scene, _report(scene, names, recs, best, check, repair, timings, paths)
 
@@ -412,7 +416,7 @@ def image_stats(rec) -> list[ImageStats]:
     """Per registered image of a pycolmap reconstruction: 3D points seen, their mean track length, and the
     mean reprojection error of its own observations (px)."""
     out = []
-    for img in sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name):
+    for img in sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: capture_key(im.name)):
         obs = img.get_observation_points2D()
         if not len(obs):
             out.append(ImageStats(img.name, 0, 0.0, float("inf")))
@@ -432,7 +436,7 @@ def image_stats(rec) -> list[ImageStats]:
 def _restricted_db(db: Path, dst: Path, keep) -> int:
     """A copy of the database without the verified pairs that ``keep(a, b)`` (image names) refuses.
     -> number of pairs removed."""
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     shutil.copyfile(db, dst)
     d = pycolmap.Database.open(dst)
@@ -563,7 +567,9 @@ def poses_to_folder(
     cfg = cfg or SfmConfig()
     inputs = [Input("photo folder", image_folder)]
     check_output_dir(Path(out), overwrite, inputs)
-    scene, report = recover_poses(image_folder, cfg)
+    # the photos copied (not linked), and SfM's database beside the output while it runs
+    check_free_space(out, (files_size(list_images(image_folder)) if images == "copy" else 0) + 64 * MB)
+    scene, report = recover_poses(image_folder, cfg, beside=Path(out))
     with atomic_dir(Path(out), overwrite, inputs) as tmp:
         write_scene_into(scene, tmp, images=images)
         (tmp / "sfm_report.json").write_text(

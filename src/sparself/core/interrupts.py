@@ -44,3 +44,17 @@ def signals_interrupt(reset: bool = True) -> Iterator[None]:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+def import_native(name: str):
+    """Import a module whose native code installs its own handler for SIGTERM on import (pycolmap: glog
+    prints a C++ stack and kills the process, so no cleanup runs), then put the Python handlers back."""
+    import importlib
+
+    before = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    module = importlib.import_module(name)
+    if threading.current_thread() is threading.main_thread():
+        for s, h in before.items():
+            if h is not None:
+                signal.signal(s, h)  # the C-level handler again, where the import replaced it
+    return module

@@ -45,10 +45,11 @@ class Repeats(logging.Filter):
         return False
 
     def rest(self) -> list[logging.LogRecord]:
-        """One record per message said for more than one file: '02.png, 03.png (2 more): ...'."""
+        """One record per message said for more than one file, naming the others: '02.png, 03.png: ...', and
+        past five '02.png, ..., 06.png and 2 more: ...' (the count is of the names not shown)."""
         out = []
         for rec, names in self.more.values():
             if names and isinstance(rec.args, tuple):  # always: only records with tuple args are counted
-                who = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "") + f" ({len(names)} more)"
+                who = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
                 out.append(logging.makeLogRecord({**vars(rec), "msg": rec.msg % ((who,) + rec.args[1:]), "args": None}))
         return out

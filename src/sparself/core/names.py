@@ -6,9 +6,12 @@ folding: they are one file on macOS and Windows)."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import unicodedata
 from typing import Iterable
+
+from natsort import natsort_keygen, ns
 
 from sparself.core.errors import InputError
 
@@ -78,3 +81,23 @@ def check_names(
             )
             raise InputError(f"{where}: {what} {name!r} {twice}")
         seen[key] = name
+
+
+def capture_key(name: str):
+    """Sort key of a file name in capture order: numbers compared as numbers (``IMG_2`` before ``IMG_10``,
+    as phones and video exports name frames without zero padding), case ignored."""
+    return _NATURAL(name)
+
+
+_NATURAL = natsort_keygen(alg=ns.IGNORECASE)
+
+
+def sibling_stem(name: str, room: int = 64) -> str:
+    """``name`` as the stem of sparself's hidden siblings of it (temporary folders, the lock: up to ``room``
+    bytes more), so that they keep within the file-name limit: a long name is cut, with a hash of the whole
+    (the same name always gives the same stem, so a later run finds a killed run's leftovers)."""
+    raw = name.encode()
+    if len(raw) + room <= _MAX_BYTES:
+        return name
+    digest = hashlib.sha1(raw).hexdigest()[:8]
+    return raw[: _MAX_BYTES - room - len(digest) - 1].decode(errors="ignore") + "~" + digest

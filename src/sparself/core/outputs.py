@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import Iterable, Iterator, NamedTuple
 
 from sparself.core.errors import OutputError
+from sparself.core.locks import output_lock
+from sparself.core.names import sibling_stem
 
 log = logging.getLogger(__name__)
 
@@ -76,17 +78,23 @@ def scene_folder(source: Path | str) -> Path:
 
 def scene_inputs(scene, what: str = "scene") -> list[Input]:
     """A scene's folder (see :func:`scene_folder`; it holds the pose files), its image folders and the
-    folders of its masks (read back with a dense scene)."""
+    folders of its masks (read back with a dense scene). Linked images (``poses --link-images``) count
+    where they really are: the photo folder behind the links is an input too."""
     found = []
     if getattr(scene, "source", None) is not None:
         found = [Input(f"{what} folder", scene_folder(scene.source))]
-    folders = {Path(f.path).parent for f in scene.frames if f.path is not None}
-    masks = {Path(f.mask).parent for f in scene.frames if f.mask is not None} - folders
+    folders = _folders_of(f.path for f in scene.frames)
+    masks = _folders_of(f.mask for f in scene.frames) - folders
     return (
         found
         + [Input(f"{what}'s image folder", d) for d in sorted(folders)]
         + [Input(f"{what}'s mask folder", d) for d in sorted(masks)]
     )
+
+
+def _folders_of(paths: Iterable[Path | str | None]) -> set[Path]:
+    """The folders of ``paths`` and, for a symbolic link, the folder of the file it points to."""
+    return {d for p in paths if p is not None for d in (Path(p).parent, real(p).parent)}
 
 
 def evaluation_inputs(scenes: Iterable) -> list[Input]:
@@ -113,6 +121,15 @@ def check_output_dir(out: Path, overwrite: bool = False, inputs: Iterable[Input]
                 "replace it; delete it yourself or choose another --out"
             )
         _check_deletable(real(out))
+        extra = added_since(out)
+        if extra:
+            log.warning(
+                "%s: --overwrite also removes %d entr%s sparself did not write there: %s",
+                out,
+                len(extra),
+                "y" if len(extra) == 1 else "ies",
+                ", ".join(extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else ""),
+            )
     if _in_place(real(out)):
         _check_writable_folder(out, real(out))
     else:
@@ -189,7 +206,7 @@ def remove_stale_temps(out: Path) -> list[Path]:
     out = Path(out)
     removed = []
     r_out = real(out)
-    prefix = f".{r_out.name}.tmp-"
+    prefix = f".{sibling_stem(r_out.name)}.tmp-"
     for parent in (r_out.parent, r_out):
         if not parent.is_dir():
             continue
@@ -210,9 +227,24 @@ def _make_temp(out: Path, make, inside: bool = False) -> Path:
     try:
         r_out.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temps(out)
-        return Path(make(f".{r_out.name}.tmp-{os.getpid()}-", r_out if inside else r_out.parent))
+        return Path(make(f".{sibling_stem(r_out.name)}.tmp-{os.getpid()}-", r_out if inside else r_out.parent))
     except OSError as e:
         raise OutputError(f"{out}: cannot write there ({e.strerror or e})") from None
+
+
+@contextlib.contextmanager
+def scratch_dir(out: Path | str | None, tag: str) -> Iterator[Path]:
+    """A folder for intermediate files, removed after: beside ``out`` and named as its temporary folders
+    (so that a later run removes it when this process is killed), or in the system temp when ``out`` is None."""
+
+    def make(prefix: str, folder: Path | None) -> str:
+        return tempfile.mkdtemp(prefix=f"{prefix}{tag}-", dir=folder)
+
+    d = Path(make("sparself-", None)) if out is None else _make_temp(Path(out), make, inside=_in_place(real(out)))
+    try:
+        yield d
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
 
 
 def _usual_mode(path: Path, mode: int) -> None:
@@ -222,11 +254,28 @@ def _usual_mode(path: Path, mode: int) -> None:
     os.chmod(path, mode & ~umask)
 
 
-def write_marker(folder: Path) -> None:
-    """Mark ``folder`` as written by sparself (what --overwrite may replace)."""
+def write_marker(folder: Path, entries: Iterable[str] = ()) -> None:
+    """Mark ``folder`` as written by sparself (what --overwrite may replace), listing the ``entries`` it
+    wrote there (so that --overwrite can name what a user added since)."""
     from sparself import __version__
 
-    (Path(folder) / MARKER).write_text(f"written by sparself {__version__}; --overwrite may replace this folder\n")
+    head = f"written by sparself {__version__}; --overwrite may replace this folder\n"
+    (Path(folder) / MARKER).write_text(head + "".join(f"{_LISTED}{e}\n" for e in sorted(entries)))
+
+
+_LISTED = "wrote: "
+
+
+def added_since(folder: Path) -> list[str]:
+    """Entries of a sparself folder that its marker does not list (put there by someone else); [] when
+    the marker lists nothing (written by an older version, or a run folder that grows as it trains)."""
+    try:
+        listed = [
+            ln[len(_LISTED) :] for ln in (Path(folder) / MARKER).read_text().splitlines() if ln.startswith(_LISTED)
+        ]
+    except OSError:
+        return []
+    return sorted(p.name for p in Path(folder).iterdir() if p.name not in {MARKER, *listed}) if listed else []
 
 
 def _remove(p: Path) -> None:
@@ -243,7 +292,7 @@ def _move_into(src: Path, folder: Path) -> None:
     except OSError as e:
         if e.errno != errno.EXDEV:
             raise
-    staged = folder / f".{folder.name}.tmp-{os.getpid()}-{src.name}"
+    staged = folder / f".{sibling_stem(folder.name)}.tmp-{os.getpid()}-{src.name}"
     if src.is_dir() and not src.is_symlink():
         shutil.copytree(src, staged, symlinks=True)
     else:
@@ -256,27 +305,62 @@ def fill_in_place(tmp: Path, r_out: Path) -> None:
     """Where ``r_out`` cannot be replaced by a rename: empty it (it was checked as replaceable), then move
     the entries of ``tmp`` in one by one, the marker first, each with an atomic rename."""
     r_out.mkdir(parents=True, exist_ok=True)
-    for p in r_out.iterdir():
-        if p != tmp:
-            _remove(p)
+    old = [p for p in r_out.iterdir() if p != tmp]
+    if old and not (r_out / MARKER).is_file():
+        raise OutputError(f"{r_out}: files that sparself did not write appeared there while this command ran")
+    for p in old:
+        _remove(p)
     entries = sorted(tmp.iterdir(), key=lambda p: (p.name != MARKER, p.name))
     for p in entries:
         _move_into(p, r_out)
     shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _swap_in(tmp: Path, r_out: Path) -> None:
-    """Rename ``tmp`` to ``r_out``; an old ``r_out`` is renamed aside first and removed after, so that
-    a failed rename puts it back. Raises OSError (EBUSY, EXDEV, ...) when ``r_out`` cannot be renamed."""
-    old = None
-    if os.path.lexists(r_out):
-        old = r_out.parent / f".{r_out.name}.tmp-{os.getpid()}-old"
-        os.rename(r_out, old)
+def identity(path: Path | str) -> tuple[int, int] | None:
+    """(device, inode) of what is at ``path`` now (None: nothing): tells the folder checked at the start
+    from one that appeared there while the command ran."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _put_aside(r_out: Path, checked: tuple[int, int] | None) -> Path | None:
+    """Rename the old output aside, if it is the folder checked at the start and still only holds what
+    sparself wrote (or nothing); whatever else is there is left in place (the rename over it then fails)."""
+    if checked is None or identity(r_out) != checked:
+        return None
+    old = r_out.parent / f".{sibling_stem(r_out.name)}.tmp-{os.getpid()}-old"
+    os.rename(r_out, old)
+    if (old / MARKER).is_file() or not any(old.iterdir()):
+        return old
+    os.rename(old, r_out)  # filled by someone else meanwhile: not ours to delete
+    return None
+
+
+_TAKEN = (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR)  # rename onto something that is there
+
+
+def _swap_in(tmp: Path, r_out: Path, checked: tuple[int, int] | None) -> None:
+    """Rename ``tmp`` to ``r_out``; the old output (``checked``: the one found at the start) is renamed
+    aside first and removed after, so that a failed rename puts it back. A rename never replaces a
+    non-empty folder, so one that appeared at ``r_out`` meanwhile survives: the result is then kept
+    beside it and an OutputError says where. Raises OSError (EBUSY, EXDEV, ...) when ``r_out`` cannot
+    be renamed."""
+    old = _put_aside(r_out, checked)
     try:
         os.rename(tmp, r_out)
-    except OSError:
+    except OSError as e:
         if old is not None:
             os.rename(old, r_out)
+        if e.errno in _TAKEN:
+            kept = r_out.parent / f"{sibling_stem(r_out.name, room=32)}.sparself-{os.getpid()}"
+            os.rename(tmp, kept)
+            raise OutputError(
+                f"{r_out}: something else was put there while this command ran, so it was left as it is; "
+                f"the result is in {kept}"
+            ) from None
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
@@ -289,23 +373,31 @@ def atomic_dir(out: Path, overwrite: bool = False, inputs: Iterable[Input] = ())
     """Yield a temporary folder beside ``out``; on success it replaces ``out``, on error it is removed.
     ``out`` may be a symlink: the folder it points to is written. A mount point is filled in place."""
     out = Path(out)
-    check_output_dir(out, overwrite, inputs)
-    r_out = real(out)
-    inside = _in_place(r_out)
-    tmp = _make_temp(out, lambda prefix, d: tempfile.mkdtemp(prefix=prefix, dir=d), inside=inside)
-    _usual_mode(tmp, 0o777)  # mkdtemp makes 0700
+    with output_lock(out):
+        check_output_dir(out, overwrite, inputs)
+        r_out = real(out)
+        checked = identity(r_out)
+        inside = _in_place(r_out)
+        tmp = _make_temp(out, lambda prefix, d: tempfile.mkdtemp(prefix=prefix, dir=d), inside=inside)
+        _usual_mode(tmp, 0o777)  # mkdtemp makes 0700
+        try:
+            write_marker(tmp)
+            yield tmp
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        _finish(out, tmp, r_out, checked, inside)
+
+
+def _finish(out: Path, tmp: Path, r_out: Path, checked: tuple[int, int] | None, inside: bool) -> None:
+    """Put the finished ``tmp`` in place of ``r_out`` (see :func:`_swap_in`); on failure remove it."""
     try:
-        write_marker(tmp)
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    try:
+        write_marker(tmp, [p.name for p in tmp.iterdir() if p.name != MARKER])
         if inside:
             fill_in_place(tmp, r_out)
             return
         try:
-            _swap_in(tmp, r_out)
+            _swap_in(tmp, r_out, checked)
         except OSError as e:
             if e.errno not in _NO_RENAME:
                 raise
@@ -337,6 +429,12 @@ def atomic_file(path: Path, inputs: Iterable[Input] = ()) -> Iterator[Path]:
     _usual_mode(tmp, 0o666)  # mkstemp makes 0600; results should get the usual file mode
     try:
         yield tmp
+    except RuntimeError:  # torch.save reports a full disk as a RuntimeError ("file write failed")
+        full = shutil.disk_usage(tmp.parent).free < 2**20
+        tmp.unlink(missing_ok=True)
+        if full:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path)) from None
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

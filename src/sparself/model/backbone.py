@@ -104,11 +104,12 @@ def hub_weights_path() -> Path:
 
 def default_weights() -> str:
     """The weights used when none are given: the torch hub cache file if present, else ``"none"``
-    (random initialisation) after one warning that says where to put the file."""
+    (random initialisation) after a note that says where to put the file (not a warning: it is the usual case
+    on a machine without a network, so -q keeps quiet about it; config.json records the weights used)."""
     cached = hub_weights_path()
     if cached.is_file():
         return str(cached)
-    log.warning(
+    log.info(
         "no ImageNet weights for ResNet-18 (no --weights and no %s); using random initialisation. "
         "Download %s there to use them.",
         cached,

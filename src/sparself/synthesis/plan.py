@@ -150,23 +150,29 @@ def nearest_neighbour_order(scene: Scene) -> np.ndarray:
 
 
 def order_frames(scene: Scene, order: str = "auto") -> np.ndarray:
-    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``."""
+    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``. When the file
+    names' order (numbers compared as numbers) walks much further than the camera positions' nearest-
+    neighbour path, names and positions disagree: a warning says so and "auto" follows the positions."""
     n = len(scene)
     capture = np.arange(n)
-    if order == "capture" or n < 3:
+    if order not in ("auto", "capture", "nearest"):
+        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
+    if n < 3:
         return capture
     nn = nearest_neighbour_order(scene)
     if order == "nearest":
         return nn
-    if order != "auto":
-        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
-    cap_len, nn_len = path_length(scene, capture), path_length(scene, nn)
-    if cap_len > AUTO_RATIO * nn_len:
-        log.info(
-            "capture order walks %.2fx the nearest-neighbour path: treating the views as unordered",
-            cap_len / max(nn_len, 1e-12),
+    ratio = path_length(scene, capture) / max(path_length(scene, nn), 1e-12)
+    if ratio > AUTO_RATIO:
+        log.warning(
+            "the file names' order walks %.2fx the path through the nearest cameras: names and camera "
+            "positions disagree about the capture order; %s",
+            ratio,
+            "following the positions (--order capture keeps the names' order)"
+            if order == "auto"
+            else "keeping the names' order as asked (--order auto follows the positions)",
         )
-        return nn
+        return nn if order == "auto" else capture
     return capture
 
 
@@ -537,6 +543,17 @@ def _plan_frame(path: Path, i: int, rec: object, scene: Scene) -> Frame:
 # ---- the `sparself plan` command ------------------------------------------------------------------
 
 
+def _replaceable(path: Path, plan: bool) -> bool:
+    """What --overwrite may replace: a plan file (its JSON says so) or, for the plot, a PNG image."""
+    try:
+        if plan:
+            return json.loads(path.read_text()).get("format") == PLAN_FORMAT
+        with open(path, "rb") as f:
+            return f.read(8) == b"\x89PNG\r\n\x1a\n"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def make_plan(
     scene_path: Path, out: Path, cfg: PlanConfig | None = None, plot: Path | None = None, overwrite: bool = False
 ) -> list[Frame]:
@@ -561,6 +578,9 @@ def make_plan(
             raise OutputError(f"{p}: already exists (use --overwrite to replace it)")
         if p.exists() and p.is_dir():
             raise OutputError(f"{p}: is a folder, expected a file path")
+        if p.exists() and not _replaceable(p, plan=p == out):
+            what = "a plan sparself wrote" if p == out else "a PNG image"
+            raise OutputError(f"{p}: not {what}, so --overwrite does not replace it; choose another name")
     cfg = cfg or PlanConfig()
     cfg.validate()
     scene = read_scene(Path(scene_path))

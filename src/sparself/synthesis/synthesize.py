@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from sparself.capture import io as sio
+from sparself.capture.io.dense import MadeFrom
 from sparself.capture.scene import Frame, Scene, one_size
 from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
@@ -48,6 +50,11 @@ class Synthesized:
 
     images: np.ndarray
     confidence: np.ndarray
+    made_from: list[MadeFrom] = field(default_factory=list)  # per view: the photos that fed it
+
+    def sources_by_name(self, targets: Sequence[Frame]) -> dict[str, MadeFrom]:
+        """The photos that fed each view, by the name of its target (what sparself.json records)."""
+        return {t.name: m for t, m in zip(targets, self.made_from)}
 
 
 def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
@@ -86,9 +93,11 @@ def synthesize_with_confidence(run_or_model, scene: Scene, targets: list[Frame])
         queries = flow_aligned(sources, queries)
     with autocast(dev, amp_dtype(run.cfg.amp, dev)):
         out, conf = render_with_confidence(model, sources, queries)
+    names = tuple(scene.frames[int(i)].name for i in sources.order)
     return Synthesized(
         out.float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float32),
         conf.float().clamp(0, 1)[:, 0].cpu().numpy().astype(np.float32),
+        [MadeFrom(tuple(names[int(j)] for j in s), names) for s in queries.sets],
     )
 
 
@@ -158,7 +167,7 @@ def synthesize_plan(
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, order_frames(scene, order))
     syn = synthesize_with_confidence(run, scene, targets)
-    dense = densify_scene(ensure_points(scene) if triangulate else scene, targets, syn.images, syn.confidence)
-    return sio.write_scene(
-        dense, Path(out), overwrite=overwrite, dense=sio.DenseInfo(str(run_path), str(plan), downscale=downscaled)
-    )
+    written = ensure_points(scene) if triangulate else scene
+    dense = densify_scene(written, targets, syn.images, syn.confidence)
+    info = sio.DenseInfo(str(run_path), str(plan), downscale=downscaled, made_from=syn.sources_by_name(targets))
+    return sio.write_scene(dense, Path(out), overwrite=overwrite, dense=info)

@@ -30,6 +30,7 @@ import random
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -240,14 +241,25 @@ def log_memory_estimate(est: dict[str, int], device: torch.device, available: in
         log.info("%s", text)
 
 
+MIN_TRAIN = 3  # training frames a run needs (each is predicted from the others)
+
+
+def check_holdout(holdout: Sequence[int], scene: Scene) -> None:
+    """Refuse --holdout positions that are not frames of ``scene`` (ConfigError naming them)."""
+    bad = [i for i in holdout if not 0 <= i < len(scene)]
+    if bad:
+        raise ConfigError(
+            f"--holdout {','.join(map(str, bad))}: outside the scene's {len(scene)} views "
+            f"(positions 0 to {len(scene) - 1})"
+        )
+
+
 def _training_frames(scene: Scene, cfg: TrainConfig) -> Scene:
     """The scene minus ``cfg.holdout`` (never loaded), at one image size."""
-    bad = [i for i in cfg.holdout if not 0 <= i < len(scene)]
-    if bad:
-        raise ConfigError(f"holdout positions {bad} are outside the scene's {len(scene)} frames")
+    check_holdout(cfg.holdout, scene)
     kept = scene.without(cfg.holdout)
-    if len(kept) < 3:
-        raise InputError(f"need at least 3 training frames, got {len(kept)} (scene {scene.source})")
+    if len(kept) < MIN_TRAIN:
+        raise InputError(f"need at least {MIN_TRAIN} training frames, got {len(kept)} (scene {scene.source})")
     return one_size(kept)
 
 

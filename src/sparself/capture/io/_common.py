@@ -9,6 +9,7 @@ import numpy.typing as npt
 
 from sparself.capture.scene import Camera, Scene
 from sparself.core.errors import InputError
+from sparself.core.names import capture_key
 
 
 def check_finite(arr: npt.ArrayLike, what: str) -> None:
@@ -55,13 +56,14 @@ def unique_cameras(cams: list[Camera]) -> tuple[dict[int, Camera], list[int]]:
 
 
 def order_frames(scene: Scene) -> Scene:
-    """Sort frames by image name (capture order) and set ``index`` to 0..N-1."""
-    scene.frames.sort(key=lambda f: f.name)
+    """Sort frames by image name in capture order (IMG_2 before IMG_10) and set ``index`` to 0..N-1."""
+    scene.frames.sort(key=lambda f: capture_key(f.name))
     for i, f in enumerate(scene.frames):
         f.index = float(i)
     return scene
 
 
 def frame_name_order(scene: Scene) -> list[int]:
-    """Frame indices in image-name order (the order LLFF/nerfstudio tools list ``images/``)."""
+    """Frame indices in plain text order of the names: the order LLFF/nerfstudio tools list ``images/``
+    (not the capture order; a written dense scene's rank prefixes make the two agree)."""
     return sorted(range(len(scene.frames)), key=lambda i: scene.frames[i].name)

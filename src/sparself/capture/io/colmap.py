@@ -17,7 +17,8 @@ from sparself.capture.io.dense import read_masks_beside
 from sparself.capture.scene import Camera, Frame, Observations, Scene
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose
-from sparself.core.names import check_names
+from sparself.core.interrupts import import_native
+from sparself.core.names import capture_key, check_names
 
 log = logging.getLogger(__name__)
 
@@ -146,10 +147,12 @@ def _check_binary_model(path: Path, stem: str, camera_ids: set[int] | None) -> s
 
 def load_reconstruction(model_dir: Path):
     """pycolmap.Reconstruction of a model folder; unreadable/truncated files -> InputError naming it."""
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     model_dir = Path(model_dir)
     _check_model_files(model_dir)
+    _check_unique_ids(model_dir / "images.txt", image_lines=True)  # pycolmap would stop on a failed C++ check
+    _check_unique_ids(model_dir / "cameras.txt")
     try:
         return pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises plain RuntimeError/ValueError on malformed files
@@ -158,6 +161,26 @@ def load_reconstruction(model_dir: Path):
             f"({str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__}); "
             "a file may be truncated or corrupt"
         ) from None
+
+
+def _check_unique_ids(path: Path, image_lines: bool = False) -> None:
+    """Refuse a text model file that gives one id (its first field) to two entries. In ``images.txt`` each
+    image takes two lines, the second (its 2D points, maybe empty) read as it is, as COLMAP reads it."""
+    if not path.is_file():
+        return
+    seen: dict[str, int] = {}
+    lines = iter(enumerate(path.read_text(errors="replace").splitlines(), 1))
+    for no, line in lines:
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        if image_lines:
+            next(lines, None)
+        key = line.split()[0]
+        if key in seen:
+            what = "IMAGE_ID" if image_lines else "CAMERA_ID"
+            raise InputError(f"{path}: line {no}: {what} {key} is already used on line {seen[key]}; ids must be unique")
+        seen[key] = no
 
 
 def scene_from_reconstruction(
@@ -181,7 +204,7 @@ def scene_from_reconstruction(
             raise InputError(f"{where}: camera {cid}: {e}") from None
     check_names([im.name for im in rec.images.values()], where, subfolders=True)  # before any file is touched
     frames, unregistered = [], []
-    for img in sorted(rec.images.values(), key=lambda im: im.name):
+    for img in sorted(rec.images.values(), key=lambda im: capture_key(im.name)):
         if not img.has_pose:
             unregistered.append(img.name)
             continue
@@ -272,7 +295,7 @@ def reconstruction_from_scene(scene: Scene):
     """A pycolmap.Reconstruction with the scene's cameras, frames (image ids 1..N in frame order) and
     points with tracks: a frame keeps its SfM observations (``Scene.observations``), any other frame
     (a synthesized view, or a scene read without tracks) observes the points that project into it."""
-    import pycolmap
+    pycolmap = import_native("pycolmap")
 
     rec = pycolmap.Reconstruction()
     for cid, cam in sorted(scene.cameras.items()):

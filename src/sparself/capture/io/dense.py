@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import logging
 import re
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -102,11 +102,23 @@ class SelfCheck:
 
 
 @dataclass(frozen=True)
+class MadeFrom:
+    """The photos a synthesized view was made from: those warped into it, and the sequence the network's
+    LSTM read before it (every source photo: each one informs every view)."""
+
+    warped: tuple[str, ...]
+    sequence: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class DenseInfo:
     """Where a dense scene came from and what to write with it.
 
-    holdout: names of real frames the user held out (they become val/test); empty = every 8th real photo.
+    holdout: names of real frames held out (they become val/test); empty = the real photos at the positions
+    position-based loaders test (:func:`positional_test`).
     downscale: write ``images_2/4/8`` copies (False for large scenes).
+    test_split: False = every photo fed training and synthesis: no val/test split is written.
+    made_from: the photos that fed each synthesized view, by its name (written to sparself.json).
     selfcheck: the densify self-check's decision; with it ``sparself.json`` is written even when no
     synthesized view was kept.
     """
@@ -115,6 +127,8 @@ class DenseInfo:
     plan: str | None = None
     holdout: tuple[str, ...] = ()
     downscale: bool = True
+    test_split: bool = True
+    made_from: dict[str, MadeFrom] = field(default_factory=dict)
     selfcheck: SelfCheck | None = None
 
 
@@ -160,6 +174,16 @@ def safe_order(synthetic: Sequence[bool], every: int = EVERY) -> list[int] | Non
             out.append(synth[s])
             s += 1
     return out
+
+
+def positional_test(frames: Sequence) -> list[str] | None:
+    """Names of the frames (real and synthesized, any order; each with ``index`` and ``synthetic``) that
+    position-based loaders will test once written: every EVERY-th of all images in :func:`safe_order`
+    (real photos only), None when there are too few real photos for that. Known before any view is
+    synthesized, so that these photos can be kept out of training and synthesis."""
+    by_index = sorted(frames, key=lambda f: f.index)
+    order = safe_order([f.synthetic for f in by_index])
+    return None if order is None else [by_index[order[p]].name for p in range(0, len(order), EVERY)]
 
 
 def rank_names(names: Sequence[str], exts: Sequence[str]) -> list[str]:
@@ -212,8 +236,16 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
     unknown = held - set(real_names)
     if unknown:
         raise ValueError(f"holdout names not among the real frames: {sorted(unknown)}")
-    rule = "the real photos held out by the user"
-    if not held:
+    positional = positional_test(frames) if safe else None
+    if not info.test_split:
+        held, rule = set(), "none: every photo fed training and synthesis"
+    elif held:
+        rule = "the real photos held out of training and synthesis"
+        if held == set(positional or ()):
+            rule += f": every {EVERY}th image of all in name order, the images position-based loaders test"
+    elif positional is not None:  # held out of nothing (a run trained on every photo): still the loaders' set
+        held, rule = set(positional), f"every {EVERY}th image of all in name order (what position-based loaders test)"
+    else:
         real_by_index = sorted((f for f in frames if not f.synthetic), key=lambda f: f.index)
         held = {f.name for f in real_by_index[::EVERY]}
         rule = f"every {EVERY}th real photo in capture order, from the first"
@@ -227,7 +259,9 @@ def layout(scene: Scene, info: DenseInfo) -> tuple[Scene, Split, list[str]]:
 
 def write_split_files(folder: Path, split: Split) -> None:
     """nerfstudio's COLMAP parser lists (``train_list.txt``, ``val_list.txt``, ``test_list.txt`` in the
-    scene folder) and 3DGS' ``sparse/0/test.txt``."""
+    scene folder) and 3DGS' ``sparse/0/test.txt``; none without a test split."""
+    if not split.test:
+        return
     for key, fname in LIST_FILES.items():
         (Path(folder) / fname).write_text("".join(n + "\n" for n in getattr(split, key)))
     model = Path(folder) / "sparse" / "0"
@@ -245,16 +279,29 @@ def write_sparself_json(folder: Path, scene: Scene, split: Split, sources: Seque
         "test_every": EVERY,
         "position_based_test_sets_are_real": split.positional_safe,
         "split": {"rule": split.rule, "train": list(split.train), "val": list(split.val), "test": list(split.test)},
-        "frames": [
-            {"name": f.name, "synthetic": bool(f.synthetic), "index": float(f.index), "source_name": s}
-            for f, s in zip(scene.frames, sources)
-        ],
+        "frames": [_frame_doc(f, s, info.made_from) for f, s in zip(scene.frames, sources)],
     }
     if info.selfcheck is not None:
         doc["selfcheck"] = info.selfcheck.to_json()
     out = Path(folder) / SPARSELF_JSON
     out.write_text(json.dumps(doc, indent=1) + "\n")
     return out
+
+
+def _frame_doc(frame, source_name: str, made_from: dict[str, MadeFrom]) -> dict:
+    """A frame's entry in sparself.json; a synthesized one names the photos it was made from."""
+    doc = {
+        "name": frame.name,
+        "synthetic": bool(frame.synthetic),
+        "index": float(frame.index),
+        "source_name": source_name,
+    }
+    if frame.synthetic and source_name in made_from:
+        doc["made_from"] = {
+            "warped": list(made_from[source_name].warped),
+            "sequence": list(made_from[source_name].sequence),
+        }
+    return doc
 
 
 def read_synthetic_names(folder: Path) -> set[str] | None:

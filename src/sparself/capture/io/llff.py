@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.capture.images import image_size_of, list_images
-from sparself.capture.io._common import check_finite, frame_name_order, unique_cameras
+from sparself.capture.io._common import check_finite, frame_name_order, order_frames, unique_cameras
 from sparself.capture.io.dense import read_masks_beside
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import InputError
@@ -107,7 +107,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         raise InputError(f"{path}: no {FILENAME} found")
     arr = _load_array(npy)
     image_dir = Path(images) if images is not None else npy.parent / "images"
-    files = list_images(image_dir)
+    files = sorted(list_images(image_dir), key=lambda p: p.name)  # rows follow plain text order, as LLFF's loaders
     check_names([p.name for p in files], image_dir)
     if len(files) != len(arr):
         raise InputError(_count_mismatch(npy, len(arr), files, image_dir))
@@ -140,18 +140,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         cams.append(Camera("SIMPLE_PINHOLE", iw, ih, (focal * sx, iw / 2.0, ih / 2.0)))
         frames.append(Frame(name=img.name, pose=Pose.from_c2w(llff_to_c2w(m[:, :4])), index=float(i), path=img))
         frame_bounds[img.name] = (float(near), float(far))
-    for (iw, ih, w, h, sx), names in scaled.items():  # once per size, not once per view
-        log.info(
-            "%s: %d of %d images are %dx%d, poses say %gx%g; scaling focal by %.4f",
-            npy.name,
-            len(names),
-            len(files),
-            iw,
-            ih,
-            w,
-            h,
-            sx,
-        )
+    _say_scaled(npy, scaled, len(files))
     cameras, ids = unique_cameras(cams)
     for f, cid in zip(frames, ids):
         f.camera_id = cid
@@ -164,7 +153,14 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
         source_format="llff",
         frame_bounds=frame_bounds,
     )
-    return read_masks_beside(scene, image_dir)
+    return read_masks_beside(order_frames(scene), image_dir)  # indices in capture order
+
+
+def _say_scaled(npy: Path, scaled: dict[tuple, list[str]], n: int) -> None:
+    """Once per image size, not once per view: which views' focal lengths were scaled to their images."""
+    for (iw, ih, w, h, sx), names in scaled.items():
+        msg = "%s: %d of %d images are %dx%d, poses say %gx%g; scaling focal by %.4f"
+        log.info(msg, npy.name, len(names), n, iw, ih, w, h, sx)
 
 
 def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:
@@ -184,6 +180,9 @@ def _frame_bounds(scene: Scene, i: int) -> tuple[float, float] | None:
     return (float(near), float(far)) if 0 < near < far else None
 
 
+APPROX_WARN = 0.01  # LLFF's one focal and centred principal point off by more than 1 %: worth a warning
+
+
 def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     """(N, 17) LLFF rows in image-name order and the frame index of each row.
 
@@ -193,7 +192,7 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
     order = frame_name_order(scene)
     known = scene.frame_bounds
     global_bounds = None
-    rows, approx = [], []
+    rows, approx, material = [], [], False
     for i in order:
         f, cam = scene.frames[i], scene.camera(i)
         if (
@@ -202,6 +201,8 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
             or abs(cam.cy - cam.height / 2) > 0.5
         ):
             approx.append(f"{f.name} (fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f})")
+            off = max(abs(cam.fx - cam.fy) / cam.fx, abs(cam.cx / cam.width - 0.5), abs(cam.cy / cam.height - 0.5))
+            material |= off > APPROX_WARN
         b = known.get(f.name) or _frame_bounds(scene, i)
         if b is None:
             global_bounds = global_bounds or scene.depth_bounds()
@@ -209,7 +210,8 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
         m = np.concatenate([c2w_to_llff(f.pose.c2w()), [[cam.height], [cam.width], [cam.fx]]], axis=1)
         rows.append(np.concatenate([m.ravel(), b]))
     if approx:  # once per write: a scene with one camera per photo would repeat it for every photo
-        log.warning(
+        log.log(
+            logging.WARNING if material else logging.INFO,
             "LLFF stores one focal and a centred principal point; the camera of %d view(s) is approximated, e.g. %s",
             len(approx),
             approx[0],

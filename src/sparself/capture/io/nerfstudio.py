@@ -217,7 +217,7 @@ def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None, mas
     out["frames"] = frames
     if scene.points is not None and len(scene.points):
         out["ply_file_path"] = "sparse_pc.ply"
-    if split is not None:
+    if split is not None and split.test:  # no test split: nerfstudio's own rule
         for key in ("train", "val", "test"):
             out[f"{key}_filenames"] = [image_prefix + n for n in getattr(split, key)]
     return out

@@ -1,0 +1,35 @@
+"""-q shows only what a user should act on: notes that hold on every run stay out of it."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from planescene import NF, NH, NW, camera_line, noise
+from sparself.capture.io.llff import llff_array
+from sparself.capture.scene import Camera
+from sparself.model.backbone import default_weights
+
+
+def test_missing_imagenet_weights_are_a_note_not_a_warning(tmp_path, monkeypatch, caplog):
+    import torch
+
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    with caplog.at_level(logging.INFO, logger="sparself"):
+        assert default_weights() == "none"
+    said = [r for r in caplog.records if "no ImageNet weights" in r.getMessage()]
+    assert len(said) == 1 and said[0].levelno == logging.INFO
+
+
+@pytest.mark.parametrize("cx_shift, level", [(1.5, logging.INFO), (64.0, logging.WARNING)])
+def test_llff_camera_approximation_warns_only_when_material(caplog, cx_shift, level):
+    """SfM's principal point a pixel off the centre is LLFF's usual approximation (a note); 10 % off is not."""
+    s = camera_line([0.0, 0.1, 0.2], (NW, NH), NF, lambda p, c, i: noise(NH, NW, i), bounds=(1.0, 5.0))
+    s.cameras[1] = Camera("PINHOLE", 640, 480, (500.0, 500.0, 320 + cx_shift, 240.0))
+    with caplog.at_level(logging.INFO, logger="sparself"):
+        rows, _ = llff_array(s)
+    said = [r for r in caplog.records if "LLFF stores one focal" in r.getMessage()]
+    assert len(said) == 1 and said[0].levelno == level
+    assert np.allclose(rows[:, 14], 500.0)
