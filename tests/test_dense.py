@@ -445,11 +445,15 @@ def test_test_photos_feed_neither_training_nor_synthesis(tmp_path, small_scene, 
     """By default the photos position-based loaders test (every 8th of all written images) are the test split
     and are kept out of training and of every synthesized view (sparself.json names the photos that fed each
     one); --no-test-split uses every photo and writes no test split."""
+    from sparself.evaluation.selfcheck import SelfCheckConfig
     from sparself.pipeline import DensifyConfig, densify
     from sparself.synthesis.plan import PlanConfig
     from sparself.synthesis.run import load_run
 
-    cfg = DensifyConfig(train=tiny_cfg(epochs=1), plan=PlanConfig(n_mid=3, n_extra=2), test_split=test_split)
+    check = SelfCheckConfig(recon="none")
+    cfg = DensifyConfig(
+        train=tiny_cfg(epochs=1), plan=PlanConfig(n_mid=3, n_extra=2), test_split=test_split, check=check
+    )
     densify(small_scene, tmp_path / "out", cfg)
     folder = tmp_path / "out" / "scene"
     sj = json.loads((folder / "sparself.json").read_text())
