@@ -166,7 +166,19 @@ def argv_for(cmd: str, inp: Path, out: Path, *extra) -> list:
     if cmd == "train":
         return ["train", inp, "--out", out, "--epochs", "1", "--size", "32", "--device", "cpu", *extra]
     if cmd == "densify":
-        return ["densify", inp, "--out", out, "--epochs", "1", "--device", "cpu", *extra]  # trains at the photos' size
+        return [
+            "densify",
+            inp,
+            "--out",
+            out,
+            "--epochs",
+            "1",
+            "--device",
+            "cpu",
+            "--recon",
+            "none",
+            *extra,
+        ]  # trains at the photos' size
     raise KeyError(cmd)
 
 

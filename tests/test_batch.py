@@ -20,14 +20,33 @@ from planescene import plane_scene
 from sparself import batch, batch_ray
 from sparself.core.errors import InputError, SparselfError
 from sparself.evaluation.config import EvalConfig
+from sparself.evaluation.selfcheck import SelfCheckConfig
 from sparself.pipeline import DensifyConfig
 from sparself.synthesis.plan import PlanConfig
 from sparself.synthesis.train_config import TrainConfig
 
 TINY = DensifyConfig(
-    train=TrainConfig(epochs=2, crop=32, planes=8, weights="none"), plan=PlanConfig(n_mid=2, n_extra=1), out_size=48
+    train=TrainConfig(epochs=2, crop=32, planes=8, weights="none"),
+    plan=PlanConfig(n_mid=2, n_extra=1),
+    out_size=48,
+    check=SelfCheckConfig(recon="none"),
 )
-TINY_ARGS = ["--epochs", "2", "--crop", "32", "--n-mid", "2", "--n-extra", "1", "--out-size", "48", "--weights", "none"]
+TINY_ARGS = [
+    "--epochs",
+    "2",
+    "--crop",
+    "32",
+    "--n-mid",
+    "2",
+    "--n-extra",
+    "1",
+    "--out-size",
+    "48",
+    "--weights",
+    "none",
+    "--recon",
+    "none",
+]
 
 
 def _write_capture(folder: Path, seed: int, n: int = 6) -> None:

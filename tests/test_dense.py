@@ -417,10 +417,13 @@ def test_a_dense_scene_written_again_keeps_one_rank_prefix(written, tmp_path):
 def test_densify_writes_the_dense_scene_with_its_split_and_provenance(tmp_path, small_scene, tiny_cfg):
     """The pipeline end to end on the small plane scene (7 views, 40 x 28): the user's held-out view is
     val/test, synthesized views are train only, sparself.json names the run and plan beside the scene."""
+    from sparself.evaluation.selfcheck import SelfCheckConfig
     from sparself.pipeline import DensifyConfig, densify
     from sparself.synthesis.plan import PlanConfig
 
-    cfg = DensifyConfig(train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2))
+    cfg = DensifyConfig(
+        train=tiny_cfg(epochs=1, holdout=(3,)), plan=PlanConfig(n_mid=3, n_extra=2), check=SelfCheckConfig(recon="none")
+    )
     densify(small_scene, tmp_path / "out", cfg)
     folder = tmp_path / "out" / "scene"
     sj = json.loads((folder / "sparself.json").read_text())
@@ -442,11 +445,15 @@ def test_test_photos_feed_neither_training_nor_synthesis(tmp_path, small_scene, 
     """By default the photos position-based loaders test (every 8th of all written images) are the test split
     and are kept out of training and of every synthesized view (sparself.json names the photos that fed each
     one); --no-test-split uses every photo and writes no test split."""
+    from sparself.evaluation.selfcheck import SelfCheckConfig
     from sparself.pipeline import DensifyConfig, densify
     from sparself.synthesis.plan import PlanConfig
     from sparself.synthesis.run import load_run
 
-    cfg = DensifyConfig(train=tiny_cfg(epochs=1), plan=PlanConfig(n_mid=3, n_extra=2), test_split=test_split)
+    check = SelfCheckConfig(recon="none")
+    cfg = DensifyConfig(
+        train=tiny_cfg(epochs=1), plan=PlanConfig(n_mid=3, n_extra=2), test_split=test_split, check=check
+    )
     densify(small_scene, tmp_path / "out", cfg)
     folder = tmp_path / "out" / "scene"
     sj = json.loads((folder / "sparself.json").read_text())

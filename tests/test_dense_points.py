@@ -14,6 +14,7 @@ from planescene import DEPTH, camera_line, noise_scene, on_disk, plane_image, te
 from sparself.capture import triangulate as tr
 from sparself.capture.io import read_nerfstudio, read_scene, write_scene
 from sparself.capture.triangulate import MIN_POINTS, ensure_points
+from sparself.evaluation.selfcheck import SelfCheckConfig
 from sparself.pipeline import DensifyConfig, densify
 from sparself.synthesis.plan import PlanConfig
 
@@ -50,7 +51,11 @@ def _written_name(folder, source_name: str) -> str:
 
 def _densify(src, out, tiny_cfg) -> None:
     cfg = DensifyConfig(
-        train=tiny_cfg(epochs=1, holdout=(5,)), plan=PlanConfig(n_mid=2, n_extra=1), out_size=OUT_SIZE, downscaled=False
+        train=tiny_cfg(epochs=1, holdout=(5,)),
+        plan=PlanConfig(n_mid=2, n_extra=1),
+        out_size=OUT_SIZE,
+        downscaled=False,
+        check=SelfCheckConfig(recon="none"),
     )
     densify(src, out, cfg)
 

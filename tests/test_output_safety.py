@@ -32,7 +32,7 @@ TINY = [
     "--weights",
     "none",
 ]
-TINY_DENSIFY = TINY[: 1 + 1] + TINY[4:]  # no --size: densify trains at the photos' size
+TINY_DENSIFY = TINY[: 1 + 1] + TINY[4:] + ["--recon", "none"]  # no --size: densify trains at the photos' size
 
 
 def tree(root: Path) -> dict:

@@ -128,6 +128,7 @@ def test_same_seed_same_images_and_novel_views_land_between_sources(tmp_path, ti
 
 def test_densify_end_to_end(tmp_path, tiny_cfg):
     from sparself.capture import io as sio
+    from sparself.evaluation.selfcheck import SelfCheckConfig
     from sparself.pipeline import DensifyConfig, densify
     from sparself.synthesis.plan import PlanConfig
 
@@ -135,7 +136,8 @@ def test_densify_end_to_end(tmp_path, tiny_cfg):
     src = tmp_path / "capture"
     sio.write_scene(scene, src)
     out = tmp_path / "dense"
-    cfg = DensifyConfig(train=tiny_cfg(epochs=2), plan=PlanConfig(n_mid=3, n_extra=2))
+    check = SelfCheckConfig(recon="none")
+    cfg = DensifyConfig(train=tiny_cfg(epochs=2), plan=PlanConfig(n_mid=3, n_extra=2), check=check)
     dense = densify(src, out, cfg)
     assert len(dense) == 12 and sum(f.synthetic for f in dense.frames) == 5
     back = sio.read_scene(out / "scene")

@@ -17,6 +17,7 @@ from sparself.core.errors import ConfigError, InputError, OutputError, SparselfE
 from sparself.core.outputs import atomic_file
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.evaluate import evaluate
+from sparself.evaluation.selfcheck import SelfCheckConfig
 from sparself.pipeline import DensifyConfig, densify
 from sparself.synthesis.plan import PlanConfig
 
@@ -144,10 +145,15 @@ def make_units(kind: str, captures: list[Capture], base, out: Path, threads: int
 
 def densify_configs(base: DensifyConfig, options: dict) -> list[tuple[int, DensifyConfig]]:
     plan_keys = {f.name for f in fields(PlanConfig)}
-    train = replace(base.train, **{k: v for k, v in options.items() if k not in plan_keys and k != "out_size"})
+    check_keys = {f.name for f in fields(SelfCheckConfig)}
+    own = plan_keys | check_keys | {"out_size"}
+    train = replace(base.train, **{k: v for k, v in options.items() if k not in own})
     plan = replace(base.plan or PlanConfig(), **{k: v for k, v in options.items() if k in plan_keys})
     plan.validate()
-    cfg = replace(base, train=train, plan=plan, out_size=options.get("out_size", base.out_size), overwrite=True)
+    check = replace(base.check, **{k: v for k, v in options.items() if k in check_keys})
+    cfg = replace(
+        base, train=train, plan=plan, check=check, out_size=options.get("out_size", base.out_size), overwrite=True
+    )
     return [(train.seed, cfg)]
 
 

@@ -501,14 +501,21 @@ def _densify_options(p: argparse.ArgumentParser) -> None:
         help="long side in px of the written scene and of training (default: as read)",
     )
     _train_options(p, skip=("size",))
+    from sparself.core.options import add_options
+    from sparself.evaluation.selfcheck import SelfCheckConfig
+
+    add_options(p, SelfCheckConfig)
 
 
 def _densify_config(args, **kw):
+    from sparself.core.options import from_args
+    from sparself.evaluation.selfcheck import SelfCheckConfig
     from sparself.pipeline import DensifyConfig
 
     return DensifyConfig(
         train=_train_config(args),
         plan=_plan_config(args),
+        check=from_args(SelfCheckConfig, args),
         out_size=args.out_size,
         downscaled=args.downscaled,
         triangulate=args.triangulate,

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from sparself.capture import io as sio
-from sparself.capture.io.dense import positional_test
+from sparself.capture.io.dense import MadeFrom, positional_test
 from sparself.capture.plot import plot_cameras
 from sparself.capture.scene import Scene, preloaded
 from sparself.capture.sfm import SfmConfig, recover_poses
@@ -18,7 +18,9 @@ from sparself.core.errors import InputError
 from sparself.core.options import option
 from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
 from sparself.core.space import MB, check_free_space, files_size
+from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, at_check_size, check_fit, self_check, weakest_plan
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
+from sparself.synthesis.run import Run
 from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
@@ -29,10 +31,12 @@ log = logging.getLogger(__name__)
 @dataclass
 class DensifyConfig:
     """Options of the whole pipeline. out_size: long side in px of the written scene (None = as read);
-    training runs at that size too (``train.size`` is replaced by it)."""
+    training runs at that size too (``train.size`` is replaced by it). check: the reconstruction the views are
+    planned for and checked against (``check.recon="none"``: the paper's plan, every view written)."""
 
     train: TrainConfig = field(default_factory=TrainConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
+    check: SelfCheckConfig = field(default_factory=SelfCheckConfig)
     sfm: SfmConfig = field(default_factory=SfmConfig)
     out_size: int | None = None
     overwrite: bool = False
@@ -72,6 +76,7 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     ``out/cameras.png`` and, if ``keep_run``, the trained run in ``out/run/``. Returns the densified scene.
     """
     cfg = cfg or DensifyConfig()
+    cfg.check.validate()
     out = Path(out)
     given = isinstance(photos_or_scene, Scene)
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
@@ -92,29 +97,27 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
         run = train(scene, tmp / "run", tcfg)
-        syn = synthesize_with_confidence(run, scene.without(tcfg.holdout), targets)
-        # points only for the written scene: training and synthesis are the same with or without them
+        # points for the written scene (training and synthesis are the same with or without them) and the fits
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        dense = densify_scene(written, targets, syn.images, syn.confidence)
-        sio.write_scene_into(
-            dense,
-            tmp / "scene",
-            dense=sio.DenseInfo(
-                "../run" if cfg.keep_run else None,
-                "../plan.json",
-                holdout,
-                cfg.downscaled,
-                cfg.test_split,
-                syn.sources_by_name(targets),
-            ),
+        planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout)
+        dense = densify_scene(written, views.frames, views.images, views.confidence)
+        info = sio.DenseInfo(
+            "../run" if cfg.keep_run else None,
+            "../plan.json",
+            holdout,
+            cfg.downscaled,
+            cfg.test_split,
+            {f.name: made_from[f.name] for f in views.frames if f.name in made_from},
+            views.record,
         )
+        sio.write_scene_into(dense, tmp / "scene", dense=info)
         # the plan and a camera plot beside the scene, so users see where the new views are
-        save_plan(tmp / "plan.json", targets, scene=scene, cfg=cfg.plan)
+        save_plan(tmp / "plan.json", planned, scene=scene, cfg=cfg.plan)
         plot_cameras(
             scene,
-            planned=targets,
+            planned=views.frames,
             path=tmp / "cameras.png",
-            title=f"{len(scene)} input views (blue) + {len(targets)} synthesized (orange)",
+            title=f"{len(scene)} input views (blue) + {len(views.frames)} synthesized (orange)",
         )
         if not cfg.keep_run:
             shutil.rmtree(tmp / "run")
@@ -143,6 +146,28 @@ def densify_bytes(photos: Scene, n_new: int, downscaled: bool) -> int:
     per_view = files_size(f.path for f in photos.frames) / max(len(photos), 1)
     views = (len(photos) + n_new) * per_view * (4 / 3 if downscaled else 1)
     return int(views + 64 * MB)
+
+
+def _views(
+    run: Run, scene: Scene, written: Scene, targets: list, cfg: DensifyConfig, holdout: tuple[int, ...]
+) -> tuple[list, Checked, dict[str, MadeFrom]]:
+    """(the planned frames, the views to write, the photos that fed each view): all synthesized from the photos
+    minus ``holdout`` (positions); every view of the paper's plan with ``check.recon`` none;
+    else planned where the reconstruction is weak (``check.plan_mode`` weak) and kept only where they pay
+    (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout)."""
+    check = cfg.check
+    if check.recon == "none":
+        if check.plan_mode != "paper":
+            log.info("--recon none: the paper's plan (planning where a reconstruction is weak needs one)")
+        syn = synthesize_with_confidence(run, scene.without(holdout), targets)
+        return targets, Checked(targets, syn.images, syn.confidence, None), syn.sources_by_name(targets)
+    inputs = written.without(holdout)
+    if check.plan_mode == "weak":
+        targets = weakest_plan(at_check_size(inputs, check), cfg.plan, check_fit(check))
+    final = synthesize_with_confidence(run, scene.without(holdout), targets)
+    synth = lambda sc, tg, **_: synthesize_with_confidence(run, sc, tg)  # noqa: E731
+    checked = self_check(inputs, targets, synth, final, check, check.plan_mode)
+    return targets, checked, final.sources_by_name(targets)
 
 
 def _with_points(scene: Scene, photos: Scene, holdout: tuple[str, ...]) -> Scene:

@@ -61,23 +61,39 @@ def validation_views(inputs: Scene, planned: list[Frame], synth: SynthFn) -> Val
     return ValidationViews(images, confidence, [f.name for f in train.frames])
 
 
-def choose_weight(
+def held_back_psnr(inputs: Scene, renderer: Renderer) -> np.ndarray:
+    """PSNR of ``renderer`` at each :func:`validation_inputs` view of ``inputs`` (their own photos), in order."""
+    val = validation_inputs(len(inputs))
+    return np.array(
+        [metrics.psnr(renderer.render(inputs.frames[i].pose, inputs.camera(i)), inputs.load(i)) for i in val]
+    )
+
+
+def weight_scores(
     inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
-) -> dict:
-    """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
-    planned ``views``) renders those held-back *input* views best (mean PSNR; the first on ties). Reads the
-    inputs' pixels only, never a held-out photo; ``views`` must be synthesized without the held-back inputs
-    (:func:`validation_views`), or their pixels would favour larger weights."""
+) -> dict[float, np.ndarray]:
+    """For each synthetic-frame weight of ``grid``: the :func:`held_back_psnr` of a fit on the inputs minus
+    :func:`validation_inputs` (+ the planned ``views`` at that weight). Reads the inputs' pixels only, never a
+    held-out photo; ``views`` must be synthesized without the held-back inputs (:func:`validation_views`), or
+    their pixels would favour larger weights."""
     val, train = validation_split(inputs)
     leaked = sorted(set(views.sources) & {inputs.frames[i].name for i in val})
     if leaked:
         raise ValueError(f"validation views synthesized from held-back input(s) {leaked}")
-    scores = {}
-    for w in grid:
-        r = fit(weighted_scene(train, planned, views.images, views.confidence, w))
-        scores[float(w)] = float(
-            np.mean([metrics.psnr(r.render(inputs.frames[i].pose, inputs.camera(i)), inputs.load(i)) for i in val])
-        )
+    return {
+        float(w): held_back_psnr(inputs, fit(weighted_scene(train, planned, views.images, views.confidence, w)))
+        for w in grid
+    }
+
+
+def choose_weight(
+    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
+) -> dict:
+    """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
+    planned ``views``) renders those held-back *input* views best (mean PSNR; the first on ties), as
+    :func:`weight_scores` measures it."""
+    val = validation_inputs(len(inputs))
+    scores = {w: float(np.mean(v)) for w, v in weight_scores(inputs, planned, views, grid, fit).items()}
     best = max(scores, key=lambda w: scores[w])
     return {
         "weight": best,

@@ -269,6 +269,65 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     return out
 
 
+# candidate poses for a plan that looks at the reconstruction first (``densify --plan weak``): the paper's
+# t values and a few more, so the weakest place in each gap can be chosen
+CANDIDATE_T_MID = (0.25, 0.5, 0.75)
+CANDIDATE_T_EXTRA = (1.2, 1.4)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A candidate novel pose and its slot: the gap of the path it lies in (0 .. N-2), or, for an
+    extrapolation (``beyond``), -1 before the first view and N-1 past the last."""
+
+    frame: Frame
+    slot: int
+    beyond: bool = False
+
+
+def candidate_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Candidate]:
+    """Every pose :func:`pick_poses` may choose from: in each gap of the path at the t values of
+    ``CANDIDATE_T_MID`` and ``cfg.t_mid``; past both ends at ``CANDIDATE_T_EXTRA`` and ``cfg.t_extra`` (only
+    when ``cfg.n_extra`` asks for extrapolations). Same poses, names and indices as :func:`plan_poses` makes."""
+    cfg = cfg or PlanConfig()
+    cfg.validate()
+    if len(scene) < 3:
+        raise InputError(
+            f"{scene.source or 'scene'}: needs at least 3 posed views to plan novel poses, got {len(scene)}"
+        )
+    seq = plan_order(scene, cfg.order)
+    idx = _indices_along(scene, seq)
+    out = [
+        Candidate(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], t), int(g))
+        for g in range(len(seq) - 1)
+        for t in sorted({*CANDIDATE_T_MID, cfg.t_mid})
+    ]
+    if cfg.n_extra:
+        for t in sorted({*CANDIDATE_T_EXTRA, cfg.t_extra}):
+            out.append(Candidate(_planned(scene, seq[-2], seq[-1], idx[-2], idx[-1], t), len(seq) - 1, True))
+            out.append(Candidate(_planned(scene, seq[1], seq[0], idx[1], idx[0], t), -1, True))
+    return out
+
+
+def pick_poses(candidates: list[Candidate], weakness: np.ndarray, cfg: PlanConfig) -> list[Frame]:
+    """The ``cfg.n_mid`` gaps and ``cfg.n_extra`` extrapolations where ``weakness`` (one number per candidate,
+    larger = the reconstruction is weaker there) is largest: in each chosen gap its weakest candidate (one per
+    gap, so the views spread); the extrapolations are the weakest of all beyond the ends. Sorted by index."""
+    order = np.argsort(-np.asarray(weakness, np.float64), kind="stable")
+    mids: list[Frame] = []
+    extras: list[Frame] = []
+    gaps: set[int] = set()
+    for k in order:
+        c = candidates[k]
+        if c.beyond:
+            if len(extras) < cfg.n_extra:
+                extras.append(c.frame)
+        elif c.slot not in gaps and len(mids) < cfg.n_mid:
+            gaps.add(c.slot)
+            mids.append(c.frame)
+    return sorted(mids + extras, key=lambda f: f.index)
+
+
 def plan_sequence(scene: Scene, cfg: PlanConfig | None = None) -> tuple[Scene, list[Frame]]:
     """The plan together with the source scene on the same index scale: ``(sources, targets)``.
 

@@ -177,7 +177,7 @@ def write_scene_into(
     check_names([f.name for f in scene.frames], scene.source or "scene", what="frame name", subfolders=True)
     split, dense = None, dense or DenseInfo()
     sources: list[str] = []
-    if any(f.synthetic for f in scene.frames):
+    if any(f.synthetic for f in scene.frames) or dense.selfcheck is not None:
         scene, split, sources = _dense.layout(scene, dense)
     new_frames = []
     for i, f in enumerate(scene.frames):

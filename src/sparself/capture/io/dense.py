@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import logging
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -45,6 +45,64 @@ _RANKED = re.compile(r"^\d{4,}_")
 
 
 @dataclass(frozen=True)
+class ViewCheck:
+    """One planned view in the self-check: its planned name and index, its validation gain (dB of PSNR on the
+    held-back input photos nearest to it, fit with the synthesized views minus fit without), and whether it
+    was kept."""
+
+    name: str
+    index: float
+    gain: float
+    kept: bool
+
+
+@dataclass(frozen=True)
+class SelfCheck:
+    """The densify self-check's decision and the numbers it was made on (``sparself.json``, key ``selfcheck``).
+
+    recon: the reconstructor the views were checked with; plan: how the poses were planned (weak, paper);
+    validation: the held-back input photos scored; psnr_without: their mean PSNR fitted without synthesized
+    views; psnr_by_weight: (synthetic-frame weight, mean PSNR) with every planned view; psnr_kept: with the
+    kept views only (None when that was not fitted); weight: the chosen synthetic-frame weight (None: no view
+    kept); views: every planned view; reason: the decision in words."""
+
+    recon: str
+    plan: str
+    validation: tuple[str, ...]
+    psnr_without: float
+    psnr_by_weight: tuple[tuple[float, float], ...]
+    psnr_kept: float | None
+    weight: float | None
+    views: tuple[ViewCheck, ...]
+    reason: str
+
+    @property
+    def kept(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.views if v.kept)
+
+    def to_json(self) -> dict:
+        doc = asdict(self)
+        doc["psnr_by_weight"] = [{"weight": w, "psnr": p} for w, p in self.psnr_by_weight]
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "SelfCheck":
+        return cls(
+            recon=str(doc["recon"]),
+            plan=str(doc["plan"]),
+            validation=tuple(map(str, doc["validation"])),
+            psnr_without=float(doc["psnr_without"]),
+            psnr_by_weight=tuple((float(d["weight"]), float(d["psnr"])) for d in doc["psnr_by_weight"]),
+            psnr_kept=None if doc.get("psnr_kept") is None else float(doc["psnr_kept"]),
+            weight=None if doc.get("weight") is None else float(doc["weight"]),
+            views=tuple(
+                ViewCheck(str(v["name"]), float(v["index"]), float(v["gain"]), bool(v["kept"])) for v in doc["views"]
+            ),
+            reason=str(doc["reason"]),
+        )
+
+
+@dataclass(frozen=True)
 class MadeFrom:
     """The photos a synthesized view was made from: those warped into it, and the sequence the network's
     LSTM read before it (every source photo: each one informs every view)."""
@@ -62,6 +120,8 @@ class DenseInfo:
     downscale: write ``images_2/4/8`` copies (False for large scenes).
     test_split: False = every photo fed training and synthesis: no val/test split is written.
     made_from: the photos that fed each synthesized view, by its name (written to sparself.json).
+    selfcheck: the densify self-check's decision; with it ``sparself.json`` is written even when no
+    synthesized view was kept.
     """
 
     run: str | None = None
@@ -70,6 +130,7 @@ class DenseInfo:
     downscale: bool = True
     test_split: bool = True
     made_from: dict[str, MadeFrom] = field(default_factory=dict)
+    selfcheck: SelfCheck | None = None
 
 
 @dataclass(frozen=True)
@@ -221,6 +282,8 @@ def write_sparself_json(folder: Path, scene: Scene, split: DenseSplit, sources: 
         "split": {"rule": split.rule, "train": list(split.train), "val": list(split.val), "test": list(split.test)},
         "frames": [_frame_doc(f, s, info.made_from) for f, s in zip(scene.frames, sources)],
     }
+    if info.selfcheck is not None:
+        doc["selfcheck"] = info.selfcheck.to_json()
     out = Path(folder) / SPARSELF_JSON
     out.write_text(json.dumps(doc, indent=1) + "\n")
     return out
@@ -253,6 +316,17 @@ def read_synthetic_names(folder: Path) -> set[str] | None:
     except (OSError, ValueError, KeyError, TypeError):
         log.warning("%s: unreadable; synthesized frames are not marked", p)
         return None
+
+
+def read_selfcheck(folder: Path) -> SelfCheck | None:
+    """The self-check recorded in ``folder/sparself.json``; None when there is none (InputError naming the file
+    when it is unreadable)."""
+    p = Path(folder) / SPARSELF_JSON
+    try:
+        doc = json.loads(p.read_text()) if p.is_file() else {}
+        return SelfCheck.from_json(doc["selfcheck"]) if "selfcheck" in doc else None
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{p}: unreadable self-check record ({e})") from None
 
 
 def downscaled_size(width: int, height: int, factor: int) -> tuple[int, int]:

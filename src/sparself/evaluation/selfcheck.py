@@ -1,0 +1,293 @@
+"""The densify self-check: synthesized views are kept only where they make the chosen reconstruction better
+at held-back *input* photos, so a densified capture is never worse than the N photos alone (on that check).
+
+* **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
+  other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
+  disagree most, the reconstruction is weakest, and that is where views are planned.
+* **Keep only what pays** (:func:`self_check`): every ``VALIDATION_EVERY``-th interior input is held back
+  (:mod:`sparself.evaluation.weighting`), the views are synthesized again without those photos, and the
+  reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
+  the PSNR change at the held-back inputs nearest to it; views that gain are kept (refitted alone to confirm),
+  and when nothing beats the fit without views, none is written.
+* **Per pixel** (:func:`informative_confidence`): where a view agrees with the render of the fit without it
+  within ``agree_within``, it adds nothing that reconstruction does not already make, so its confidence is
+  lowered there (written as the exported mask, so gsplat/nerfstudio users get the same effect).
+
+The self-check's fits run at ``check_size`` pixels with ``check_steps`` optimisation steps: it compares fits
+with each other, so they need not be the user's final fit, only alike.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import Callable, Literal
+
+import numpy as np
+import torch
+
+from sparself.capture.images import resize_image
+from sparself.capture.io.dense import SelfCheck, ViewCheck
+from sparself.capture.scene import Frame, Scene, preloaded
+from sparself.core.errors import ConfigError
+from sparself.core.options import check_choices, option
+from sparself.evaluation.instruments import SynthFn, images_and_confidence
+from sparself.evaluation.weighting import (
+    ValidationViews,
+    held_back_psnr,
+    validation_inputs,
+    validation_split,
+    validation_views,
+    weight_scores,
+)
+from sparself.recon import Renderer, get_reconstructor
+from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
+
+log = logging.getLogger(__name__)
+
+BLUR = 5  # px: the view-minus-render difference is averaged over this window before it is compared
+
+
+@dataclass
+class SelfCheckConfig:
+    """How ``densify`` checks its views against a reconstruction (each field's help is its documentation)."""
+
+    recon: Literal["3dgs", "nerf", "mpi", "none"] = option(
+        "3dgs",
+        "reconstruction the views must improve: plan where it is weak, keep only views that raise its PSNR on "
+        "held-back input photos (none: the paper's plan, every view kept, no fit)",
+    )
+    plan_mode: Literal["weak", "paper"] = option(
+        "weak",
+        "where views go: where fits on complementary halves of the inputs disagree most (weak), or the "
+        "paper's midpoints and extrapolations (paper; always with --recon none)",
+        flag="--plan",
+    )
+    check_size: int = option(
+        64, "long side in px of the self-check's fits (a CPU 3DGS step costs about 4x more at twice the side)"
+    )
+    check_steps: int | None = option(
+        300, "optimisation steps of each self-check fit (auto: the reconstructor's own, slower)"
+    )
+    check_weights: tuple[float, ...] = option(
+        (0.5, 1.0), "synthetic-frame loss weights tried (one fit each on the inputs minus the held-back ones)"
+    )
+    min_gain: float = option(0.0, "dB a view must add at its held-back inputs to be kept")
+    agree_within: float = option(
+        0.03,
+        "mean absolute difference (0..1) within which a synthesized pixel agrees with the render of the fit "
+        "without it; its confidence is lowered there (0: never)",
+    )
+    agree_weight: float = option(0.3, "the factor the confidence of such agreeing pixels is multiplied by")
+    check_seed: int = option(0, "seed of the self-check's fits")
+
+    def validate(self) -> None:
+        check_choices(self)
+        if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
+            raise ConfigError(
+                f"check_size must be >= 8 and check_steps >= 1, got {self.check_size}, {self.check_steps}"
+            )
+        if not self.check_weights or min(self.check_weights) <= 0:
+            raise ConfigError(f"check_weights must be one or more weights > 0, got {self.check_weights}")
+        if self.agree_within < 0 or not 0 <= self.agree_weight <= 1:
+            raise ConfigError(
+                f"agree_within must be >= 0 and agree_weight in [0, 1], got {self.agree_within}, {self.agree_weight}"
+            )
+
+
+@dataclass
+class Checked:
+    """What densify writes: the kept planned frames, their images (T, H, W, 3) and exported confidence
+    (T, H, W; the synthetic-frame weight and the per-pixel lowering folded in), and the decision."""
+
+    frames: list[Frame]
+    images: np.ndarray
+    confidence: np.ndarray | None
+    record: SelfCheck | None  # None: not checked (recon none)
+
+
+def check_fit(cfg: SelfCheckConfig) -> Callable[[Scene], Renderer]:
+    """fit(scene) -> renderer for ``cfg.recon`` with the self-check's steps and seed."""
+    fit = get_reconstructor(cfg.recon)
+    kw: dict = {} if cfg.recon == "mpi" else {"seed": cfg.check_seed, "progress": False}
+    if cfg.check_steps is not None and cfg.recon != "mpi":
+        kw["steps"] = cfg.check_steps
+        if cfg.recon == "3dgs" and _cpu_splatting():
+            kw["min_steps_per_view"] = 0  # the CPU path raises steps to 60 per view otherwise
+    return lambda sc: fit(sc, **kw)
+
+
+def _cpu_splatting() -> bool:
+    from sparself.recon.gsplat import available
+
+    return not available()[0]
+
+
+def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
+    """The scene with images in memory at ``cfg.check_size`` (never enlarged)."""
+    side = max(max(c.width, c.height) for c in scene.cameras.values())
+    return preloaded(scene.resized(cfg.check_size) if side > cfg.check_size else scene)
+
+
+def _resized(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(T, H, W[, 3]) images or maps at size (W, H)."""
+    if (maps.shape[2], maps.shape[1]) == tuple(size):
+        return np.asarray(maps, np.float32)
+    return np.stack([resize_image(np.asarray(m, np.float32), size) for m in maps])
+
+
+def renders(renderer: Renderer, scene: Scene, frames: list[Frame]) -> np.ndarray:
+    """(T, H, W, 3) renders of ``frames`` with the scene's cameras."""
+    return np.stack([renderer.render(f.pose, scene.cameras[f.camera_id]) for f in frames])
+
+
+def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
+    """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
+    ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
+    their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses`."""
+    cands = candidate_poses(inputs, replace(plan, order="capture"))
+    frames = [c.frame for c in cands]
+    a, b = (renders(fit(inputs.subset(range(k, len(inputs), 2))), inputs, frames) for k in (0, 1))
+    weak = np.abs(a - b).mean(axis=(1, 2, 3))
+    picked = pick_poses(cands, weak, plan)
+    log.info(
+        "plan: %d views where halves of the inputs disagree most (%.4f .. %.4f; candidates %.4f .. %.4f)",
+        len(picked),
+        min(weak[frames.index(f)] for f in picked),
+        max(weak[frames.index(f)] for f in picked),
+        weak.min(),
+        weak.max(),
+    )
+    return picked
+
+
+def informative_confidence(
+    images: np.ndarray, confidence: np.ndarray | None, reference: np.ndarray, cfg: SelfCheckConfig
+) -> np.ndarray:
+    """Each view's confidence (T, H, W; ones when None) times ``cfg.agree_weight`` where it agrees with
+    ``reference`` (the render of a fit without it, same size) within ``cfg.agree_within`` (mean absolute
+    difference over the colour channels and a BLUR-px window), rising linearly to 1 at twice that."""
+    conf = np.ones(images.shape[:3], np.float32) if confidence is None else np.asarray(confidence, np.float32)
+    if cfg.agree_within <= 0:
+        return conf
+    raw = torch.from_numpy(np.abs(np.asarray(images, np.float32) - reference).mean(-1))[:, None]
+    diff = torch.nn.functional.avg_pool2d(raw, BLUR, 1, BLUR // 2, count_include_pad=False)[:, 0].numpy()
+    tau = cfg.agree_within
+    factor = cfg.agree_weight + (1.0 - cfg.agree_weight) * np.clip((diff - tau) / tau, 0.0, 1.0)
+    return (conf * factor).astype(np.float32)
+
+
+def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray) -> np.ndarray:
+    """Each planned view's gain: the mean of ``gain`` (one per :func:`validation_inputs` view) over the
+    held-back inputs nearest to it by index (ties: all of them)."""
+    at = np.array([inputs.frames[i].index for i in validation_inputs(len(inputs))])
+    out = []
+    for f in planned:
+        d = np.abs(at - f.index)
+        out.append(float(np.mean(gain[np.isclose(d, d.min())])))
+    return np.array(out)
+
+
+@dataclass
+class _Fits:
+    """The validation fits' numbers: PSNR at the held-back inputs without views and per weight."""
+
+    without: np.ndarray
+    by_weight: dict[float, np.ndarray]
+    reference: np.ndarray  # (T, h, w, 3) renders of the fit without views at the planned poses
+
+
+def _validation_fits(
+    small: Scene, planned: list[Frame], views: ValidationViews, fit, cfg
+) -> tuple[_Fits, ValidationViews]:
+    """Fit without views, lower the validation views' confidence against its render, fit with them per weight."""
+    _, train = validation_split(small)
+    base = fit(train)
+    ref = renders(base, small, planned)
+    views = replace(views, confidence=informative_confidence(views.images, views.confidence, ref, cfg))
+    return _Fits(held_back_psnr(small, base), weight_scores(small, planned, views, cfg.check_weights, fit), ref), views
+
+
+@dataclass
+class _Decision:
+    keep: np.ndarray  # (T,) bool
+    weight: float
+    best: float  # mean held-back PSNR of the chosen set
+    kept_psnr: float | None
+    gains: np.ndarray  # (T,) dB per view
+
+
+def _decide(small: Scene, planned: list[Frame], views: ValidationViews, fits: _Fits, fit, cfg) -> _Decision:
+    """The weight with the best held-back PSNR; the views that gain there, refitted alone when that is a
+    proper subset, kept when they beat every view together."""
+    means = {w: float(v.mean()) for w, v in fits.by_weight.items()}
+    w = max(means, key=lambda k: means[k])
+    gains = view_gains(small, planned, fits.by_weight[w] - fits.without)
+    keep = gains > cfg.min_gain
+    if not 0 < keep.sum() < len(planned):
+        return _Decision(np.ones(len(planned), bool), w, means[w], None, gains)
+    idx = np.flatnonzero(keep)
+    sub = ValidationViews(views.images[idx], None if views.confidence is None else views.confidence[idx], views.sources)
+    kept_psnr = float(weight_scores(small, [planned[i] for i in idx], sub, [w], fit)[w].mean())
+    if kept_psnr < means[w]:
+        return _Decision(np.ones(len(planned), bool), w, means[w], kept_psnr, gains)
+    return _Decision(keep, w, kept_psnr, kept_psnr, gains)
+
+
+def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: SelfCheckConfig, plan: str) -> Checked:
+    """Keep the planned views that pay (see the module docstring).
+
+    inputs: the N input photos (any size, in path order, with sparse points for 3DGS); planned: the views'
+    frames; synth: the network ``(scene, targets) -> Synthesized``; final: what it made from all inputs (the
+    views that would be written: a Synthesized or (T, H, W, 3) images); plan: how the poses were planned.
+    Returns the kept views with their exported confidence and the decision, logged in one line."""
+    fit = check_fit(cfg)
+    small = at_check_size(inputs, cfg)
+    cam = small.cameras[planned[0].camera_id]
+    size = (cam.width, cam.height)
+    raw = validation_views(inputs, planned, synth)
+    conf = None if raw.confidence is None else _resized(raw.confidence, size)
+    vv = ValidationViews(_resized(raw.images, size), conf, raw.sources)
+    fits, vv = _validation_fits(small, planned, vv, fit, cfg)
+    d = _decide(small, planned, vv, fits, fit, cfg)
+    without = float(fits.without.mean())
+    paid = d.best - without > cfg.min_gain
+    keep = d.keep & paid
+    record = SelfCheck(
+        recon=cfg.recon,
+        plan=plan,
+        validation=tuple(small.frames[i].name for i in validation_inputs(len(small))),
+        psnr_without=without,
+        psnr_by_weight=tuple((w, float(v.mean())) for w, v in fits.by_weight.items()),
+        psnr_kept=d.kept_psnr,
+        weight=d.weight if paid else None,
+        views=tuple(ViewCheck(f.name, float(f.index), float(g), bool(k)) for f, g, k in zip(planned, d.gains, keep)),
+        reason=_reason(cfg.recon, int(keep.sum()), len(planned), d, without),
+    )
+    (log.info if paid else log.warning)("self-check: %s", record.reason)
+    images, conf = images_and_confidence(final)
+    idx = np.flatnonzero(keep)
+    exported = _exported(images, conf, fits.reference, d.weight, cfg)
+    return Checked([planned[i] for i in idx], images[idx], exported[idx], record)
+
+
+def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:
+    """The written views' confidence: the network's, lowered where the view agrees with the render of the fit
+    without views (at that fit's size, then scaled up), times the synthetic-frame weight."""
+    h, w = reference.shape[1:3]
+    factor = informative_confidence(_resized(images, (w, h)), None, reference, cfg)
+    factor = np.clip(_resized(factor, (images.shape[2], images.shape[1])), 0.0, 1.0)
+    base = np.ones(images.shape[:3], np.float32) if conf is None else np.asarray(conf, np.float32)
+    return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
+
+
+def _reason(recon: str, kept: int, planned: int, d: _Decision, without: float) -> str:
+    if kept == 0:
+        return (
+            f"no synthesized view improves the {recon} fit on the held-back input photos (best {d.best:.2f} dB, "
+            f"{without:.2f} dB without views): the capture is written without synthesized views"
+        )
+    return (
+        f"kept {kept} of {planned} synthesized views at weight {d.weight:g}: the {recon} fit renders the "
+        f"held-back input photos at {d.best:.2f} dB with them, {without:.2f} dB without"
+    )

@@ -1,0 +1,206 @@
+"""densify's self-check: views are planned where the reconstruction is weak and written only when they raise
+its PSNR on held-back input photos, so a densified capture is never worse than its photos alone."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from planescene import plane_scene, render_plane, small_plane_scene
+from sparself import pipeline
+from sparself.capture.io import read_scene, write_scene
+from sparself.capture.io.dense import SelfCheck, ViewCheck, read_selfcheck
+from sparself.core.geometry import Pose
+from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, view_gains, weakest_plan
+from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
+from sparself.synthesis.synthesize import Synthesized
+
+PLAN = PlanConfig(n_mid=4, n_extra=2)
+MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=96)
+
+
+def _line(n: int = 12):
+    return plane_scene(xs=tuple(0.1 * i for i in range(n)))  # 96 x 64 views of a textured plane
+
+
+def _densify(tmp_path, monkeypatch, views, check=MPI):
+    """densify with the network replaced by ``views(scene, targets) -> images`` (no training)."""
+
+    def fake_train(scene, path, cfg):
+        path.mkdir(parents=True)
+        return None
+
+    def fake_synth(run, scene, targets):
+        imgs = views(scene, targets)
+        return Synthesized(imgs, np.full(imgs.shape[:3], 0.9, np.float32))
+
+    monkeypatch.setattr(pipeline, "train", fake_train)
+    monkeypatch.setattr(pipeline, "synthesize_with_confidence", fake_synth)
+    cfg = pipeline.DensifyConfig(plan=PLAN, check=check, triangulate=False, keep_run=False, downscaled=False)
+    return pipeline.densify(_line(), tmp_path / "out", cfg)
+
+
+def _exact(scene, targets):
+    return np.stack([render_plane(t.pose, scene.cameras[t.camera_id]) for t in targets])
+
+
+def _noise(scene, targets):
+    cam = scene.cameras[targets[0].camera_id]
+    return np.random.default_rng(0).random((len(targets), cam.height, cam.width, 3)).astype(np.float32)
+
+
+def test_bad_views_are_not_written_and_sparself_json_says_why(tmp_path, monkeypatch, caplog):
+    dense = _densify(tmp_path, monkeypatch, _noise)
+    folder = tmp_path / "out" / "scene"
+    assert not any(f.synthetic for f in dense.frames) and len(read_scene(folder)) == 12
+    rec = read_selfcheck(folder)
+    assert rec.kept == () and rec.weight is None and len(rec.views) == 6
+    assert "without synthesized views" in rec.reason and "mpi" in rec.reason
+    assert max(p for _, p in rec.psnr_by_weight) < rec.psnr_without  # noise made every fit worse
+    assert all(v.gain < 0 for v in rec.views)
+    assert [r.getMessage() for r in caplog.records if "self-check" in r.getMessage()] == [f"self-check: {rec.reason}"]
+
+
+def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkeypatch):
+    dense = _densify(tmp_path, monkeypatch, _exact)
+    folder = tmp_path / "out" / "scene"
+    rec = read_selfcheck(folder)
+    planned = plan_poses(_line(), PLAN)  # --plan paper: exactly today's plan
+    assert [v.name for v in rec.views] == [f.name for f in planned]
+    assert [f.name for f in dense.frames if f.synthetic] == list(rec.kept) == [f.name for f in planned]
+    assert all(v.gain > 0 for v in rec.views) and rec.weight in MPI.check_weights
+    assert dict(rec.psnr_by_weight)[rec.weight] > rec.psnr_without
+    doc = json.loads((folder / "sparself.json").read_text())
+    test = {f["source_name"] for f in doc["frames"] if f["name"] in doc["split"]["test"]}
+    inputs = [f.name for f in _line().frames if f.name not in test]  # the test photos never reach the check
+    assert test and rec.validation == (inputs[2], inputs[7])  # every 5th interior input, from the third
+    written = json.loads((tmp_path / "out" / "plan.json").read_text())["frames"]
+    for f, w in zip(planned, written):
+        np.testing.assert_allclose(w["qvec"], f.pose.qvec) and np.testing.assert_allclose(w["tvec"], f.pose.tvec)
+    back = read_scene(folder)
+    syn = [i for i, f in enumerate(back.frames) if f.synthetic]
+    # exact views agree with the MPI's render over most pixels: their exported confidence is lowered there
+    masks = [back.confidence_map(i) for i in syn]
+    assert all(m.max() <= 0.9 * rec.weight + 1 / 255 for m in masks)
+    assert min(float(np.mean(m < 0.9 * rec.weight - 0.05)) for m in masks) > 0.1
+
+
+def test_recon_none_writes_every_view_of_the_paper_plan_without_any_fit(tmp_path, monkeypatch):
+    """The CLI end to end with --recon none: no reconstructor runs, the plan is the paper's, every view and
+    its network confidence is written as before the self-check existed, and sparself.json has no record."""
+    from sparself import cli, recon
+    from sparself.capture.io.dense import mask_values
+    from sparself.synthesis.synthesize import synthesize_with_confidence
+
+    monkeypatch.setattr(recon, "get_reconstructor", lambda name: pytest.fail(f"fitted {name}"))
+    write_scene(small_plane_scene(), tmp_path / "cap")  # 7 views, 40 x 28
+    net = ["--epochs", "1", "--crop", "16", "--planes", "8", "--channels", "4", "--fc-side", "12"]
+    args = [
+        "densify",
+        str(tmp_path / "cap"),
+        "--out",
+        str(tmp_path / "out"),
+        "--recon",
+        "none",
+        "-q",
+        "--no-downscaled",
+    ]
+    assert (
+        cli.main(
+            [
+                *args,
+                *net,
+                "--backbone-size",
+                "32",
+                "--weights",
+                "none",
+                "--n-mid",
+                "3",
+                "--n-extra",
+                "2",
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
+    folder = tmp_path / "out" / "scene"
+    assert "selfcheck" not in json.loads((folder / "sparself.json").read_text()) and read_selfcheck(folder) is None
+    back = read_scene(folder)
+    planned = plan_poses(read_scene(tmp_path / "cap"), PlanConfig(n_mid=3, n_extra=2))
+    syn = [i for i, f in enumerate(back.frames) if f.synthetic]
+    assert len(syn) == 5 and len(back) == 12
+    for i, f in zip(syn, planned):
+        np.testing.assert_allclose(back.frames[i].pose.w2c(), f.pose.w2c(), atol=1e-6)
+    cap = read_scene(tmp_path / "cap")  # the views are made from the photos outside the written test split
+    made = synthesize_with_confidence(
+        tmp_path / "out" / "run", cap.without(pipeline.test_positions(cap, planned)), planned
+    )
+    for k, i in enumerate(syn):  # the network's confidence, not lowered
+        np.testing.assert_array_equal(np.round(back.confidence_map(i) * 255), mask_values(made.confidence[k]))
+
+
+def test_agreeing_pixels_get_lower_confidence():
+    cfg = SelfCheckConfig(agree_within=0.05, agree_weight=0.25)
+    ref = np.full((2, 9, 9, 3), 0.5, np.float32)
+    img = ref.copy()
+    img[1] += 0.2  # differs by 0.2 > 2 x 0.05 everywhere: informative
+    img[0, :, :, 0] += 0.225  # mean over channels 0.075: halfway between 0.05 and 0.1
+    out = informative_confidence(img, np.full((2, 9, 9), 0.8, np.float32), ref, cfg)
+    np.testing.assert_allclose(out[1], 0.8, atol=1e-6)
+    np.testing.assert_allclose(out[0], 0.8 * (0.25 + 0.75 * 0.5), atol=1e-5)
+    assert np.array_equal(informative_confidence(ref, None, ref, cfg), np.full((2, 9, 9), 0.25, np.float32))
+
+
+def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():
+    scene = _line(12)  # held back: positions 2 and 7
+    frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate((1.5, 4.5, 6.0, 9.5))]
+    # 4.5 is equally far from 2 and 7: the mean of both
+    np.testing.assert_allclose(view_gains(scene, frames, np.array([1.0, -3.0])), [1.0, -1.0, -3.0, -3.0])
+
+
+def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
+    scene = _line(8)
+
+    class Flat:  # one half renders 0 everywhere, the other a bump centred at x = 0.42
+        def __init__(self, bump):
+            self.bump = bump
+
+        def render(self, pose: Pose, cam):
+            v = np.exp(-(((pose.center[0] - 0.42) / 0.05) ** 2)) if self.bump else 0.0
+            return np.full((cam.height, cam.width, 3), v, np.float32)
+
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), lambda sc: Flat(sc.frames[0].name == "src1"))
+    assert [f.index for f in picked] == [3.75, 4.25, 7.2]  # nearest x = 0.42 in gaps 3-4 and 4-5; the end
+    cands = candidate_poses(scene, PlanConfig(n_mid=2, n_extra=1))
+    assert len(cands) == 7 * 3 + 2 * 2 and sum(c.beyond for c in cands) == 4
+    assert {c.frame.index for c in cands if c.beyond} == {-0.2, -0.4, 7.2, 7.4}
+    weak = np.array([1.0 if c.slot == 0 else 0.0 for c in cands])  # all of gap 0 weak: one view there only
+    assert [f.index for f in pick_poses(cands, weak, PlanConfig(n_mid=2, n_extra=0))] == [0.25, 1.25]
+
+
+def test_the_self_check_record_round_trips_through_json():
+    rec = SelfCheck(
+        "3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, (ViewCheck("n", 1.5, 0.3, True),), "r"
+    )
+    assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
+    assert rec.kept == ("n",)
+
+
+def test_a_batch_manifest_sets_the_self_check_per_capture():
+    from sparself.batch_units import densify_configs
+
+    [(_, cfg)] = densify_configs(pipeline.DensifyConfig(), {"recon": "mpi", "check_steps": 50, "n_mid": 3, "epochs": 2})
+    assert (cfg.check.recon, cfg.check.check_steps, cfg.plan.n_mid, cfg.train.epochs) == ("mpi", 50, 3, 2)
+
+
+def test_a_bad_self_check_setting_is_one_line_before_anything_runs(tmp_path, capsys):
+    from sparself import cli
+
+    write_scene(small_plane_scene(), tmp_path / "cap")
+    assert cli.main(["densify", str(tmp_path / "cap"), "--out", str(tmp_path / "o"), "--check-weights", "0"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "check_weights" in err and "\n" not in err and not (tmp_path / "o").exists()
