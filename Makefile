@@ -40,7 +40,9 @@ demo: $(STAMP)
 	  --epochs $(DEMO_EPOCHS) --seed 0 --overwrite
 	$(VENV)/bin/sparself info $(DEMO_OUT)/scene
 	@echo "demo: dense scene in $(DEMO_OUT)/scene (COLMAP sparse/0, poses_bounds.npy, transforms.json),"
-	@echo "      synthesized views $(DEMO_OUT)/scene/images/*novel_*, marked in sparself.json; plan and camera plot in $(DEMO_OUT)/"
+	@echo "      the synthesized views the 3DGS self-check kept: $(DEMO_OUT)/scene/images/*novel_*, marked in sparself.json"
+	@echo "      (its 'selfcheck' entry says which views paid, by how much, and why the others were dropped);"
+	@echo "      plan and camera plot in $(DEMO_OUT)/"
 
 # held-out evaluation of the sample (minutes on a CPU with --quick; see README)
 evaluate: $(STAMP)
