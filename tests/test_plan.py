@@ -10,15 +10,9 @@ import pytest
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.errors import ConfigError, InputError
 from sparself.core.geometry import Pose, quat_angle, rotmat_to_quat
-from sparself.synthesis.plan import (
-    PlanConfig,
-    load_plan,
-    nearest_neighbour_order,
-    plan_order,
-    plan_poses,
-    plan_sequence,
-    save_plan,
-)
+from sparself.synthesis.ordering import nearest_neighbour_order, plan_order
+from sparself.synthesis.plan import PlanConfig, plan_poses, plan_sequence, save_plan
+from sparself.synthesis.plan_files import load_plan
 
 
 def look_at(center, target=(0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0)) -> Pose:

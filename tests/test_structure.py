@@ -109,7 +109,7 @@ def test_evaluate_options_reach_the_network_config(monkeypatch):
 
 
 def test_train_options_parse_into_the_config_and_config_json_round_trips(tmp_path):
-    from sparself.cli import _train_config
+    from sparself.commands import train_config as _train_config
 
     args = _subparser("train").parse_args(
         [
@@ -141,7 +141,7 @@ def test_train_options_parse_into_the_config_and_config_json_round_trips(tmp_pat
 # lower layer. Modules at the package root (cli, pipeline, batch) are the shell, the top layer.
 LAYERS = {"core": 0, "capture": 1, "model": 2, "synthesis": 3, "recon": 3, "evaluation": 4}
 SHELL = 5
-SHELL_MODULES = {"__init__", "cli", "pipeline", "batch", "batch_units", "batch_ray"}
+SHELL_MODULES = {"__init__", "cli", "commands", "commands_synthesis", "pipeline", "batch", "batch_units", "batch_ray"}
 
 
 def _module_name(path: Path) -> tuple[str, bool]:

@@ -144,7 +144,7 @@ def test_densify_end_to_end(tmp_path, tiny_cfg):
     assert len(back) == 12
     assert (out / "scene" / "transforms.json").is_file() and (out / "scene" / "poses_bounds.npy").is_file()
     assert (out / "scene" / "sparse" / "0").is_dir() and (out / "run" / "checkpoint.pt").is_file()
-    from sparself.synthesis.plan import load_plan
+    from sparself.synthesis.plan_files import load_plan
 
     planned = load_plan(out / "plan.json", back, check_source=False)  # back: sources + synthesized
     synth = {f.name: f for f in dense.frames if f.synthetic}

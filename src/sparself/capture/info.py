@@ -11,7 +11,7 @@ import numpy as np
 from sparself.capture.scene import Scene
 from sparself.core.geometry import quat_angle
 
-# the names sparself gives synthesized views (sparself.plan.novel_name, maybe behind a rank prefix)
+# the names sparself gives synthesized views (sparself.synthesis.plan_files.novel_name, maybe behind a rank prefix)
 _NOVEL = re.compile(r"(^|_)novel_-?\d+\.\d\d\.png$")
 
 

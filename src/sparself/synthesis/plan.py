@@ -36,25 +36,21 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from sparself.capture.images import IMAGE_EXTENSIONS
 from sparself.capture.scene import Frame, Scene
 from sparself.core.errors import ConfigError, InputError
-from sparself.core.geometry import Pose, interpolate_pose
-from sparself.core.names import check_names
+from sparself.core.geometry import interpolate_pose
 from sparself.core.options import check_choices, option
 from sparself.core.outputs import atomic_file
+from sparself.synthesis.ordering import indices_along, plan_order, reindexed, step_costs
+from sparself.synthesis.plan_files import PLAN_FORMAT, PLAN_VERSION, novel_name, source_record
 
 log = logging.getLogger(__name__)
-
-AUTO_RATIO = 1.5  # "auto" switches to the nearest-neighbour path when capture order walks this much further
-PLAN_FORMAT = "sparself-plan"
-PLAN_VERSION = 1
 
 
 @dataclass
@@ -90,120 +86,7 @@ class PlanConfig:
 # ---- ordering ------------------------------------------------------------------------------------
 
 
-def _step_costs(centers: np.ndarray, quats: np.ndarray, scale: float, i: int, js: np.ndarray) -> np.ndarray:
-    """Distance from view i to views js: centre distance / scale + rotation angle (rad). -> (len(js),)"""
-    d = np.linalg.norm(centers[js] - centers[i], axis=1) / scale
-    dots = np.clip(np.abs(quats[js] @ quats[i]), 0.0, 1.0)
-    return d + 2.0 * np.arccos(dots)
-
-
-def path_length(scene: Scene, order: np.ndarray) -> float:
-    """Length of the path visiting the views in ``order`` (same distance as the ordering uses)."""
-    centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
-    order = np.asarray(order)
-    if len(order) < 2:
-        return 0.0
-    d = np.linalg.norm(np.diff(centers[order], axis=0), axis=1) / scale
-    dots = np.clip(np.abs(np.sum(quats[order[1:]] * quats[order[:-1]], axis=1)), 0.0, 1.0)
-    return float(np.sum(d + 2.0 * np.arccos(dots)))
-
-
-def _greedy_path(centers: np.ndarray, quats: np.ndarray, scale: float, start: int) -> np.ndarray:
-    n = len(centers)
-    visited = np.zeros(n, dtype=bool)
-    order = np.empty(n, dtype=np.int64)
-    cur = start
-    for k in range(n):
-        order[k] = cur
-        visited[cur] = True
-        if k == n - 1:
-            break
-        rest = np.flatnonzero(~visited)
-        cur = int(rest[np.argmin(_step_costs(centers, quats, scale, cur, rest))])
-    return order
-
-
-def nearest_neighbour_order(scene: Scene) -> np.ndarray:
-    """A short path through all views: greedy nearest neighbour, O(N^2) time, O(N) memory.
-
-    Started from three candidates (frame 0, the view farthest from the centroid, and the view farthest
-    from that one — the ends of an open arc), keeping the shortest; deterministic. -> (N,) frame indices.
-    """
-    centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
-    far1 = int(np.argmax(np.linalg.norm(centers - centers.mean(0), axis=1)))
-    far2 = int(np.argmax(_step_costs(centers, quats, scale, far1, np.arange(len(centers)))))
-    best, best_len = None, np.inf
-    for s in dict.fromkeys([0, far1, far2]):  # ordered, without repeats
-        o = _greedy_path(centers, quats, scale, s)
-        length = path_length(scene, o)
-        if length < best_len - 1e-12:
-            best, best_len = o, length
-    if best is None:  # every length is inf or NaN
-        raise InputError(
-            f"{scene.source or 'scene'}: camera positions too far apart to plan a path "
-            "(distances overflow); check the pose file's translations"
-        )
-    # Present the path in the direction that agrees with capture order where it can (stable output).
-    if best[0] > best[-1]:
-        best = best[::-1].copy()
-    return best
-
-
-def plan_order(scene: Scene, order: str = "auto") -> np.ndarray:
-    """The sequence along which "consecutive" is meant: (N,) indices into ``scene.frames``. When the file
-    names' order (numbers compared as numbers) walks much further than the camera positions' nearest-
-    neighbour path, names and positions disagree: a warning says so and "auto" follows the positions."""
-    n = len(scene)
-    capture = np.arange(n)
-    if order not in ("auto", "capture", "nearest"):
-        raise ConfigError(f"order must be auto, capture or nearest, got {order!r}")
-    if n < 3:
-        return capture
-    nn = nearest_neighbour_order(scene)
-    if order == "nearest":
-        return nn
-    ratio = path_length(scene, capture) / max(path_length(scene, nn), 1e-12)
-    if ratio > AUTO_RATIO:
-        log.warning(
-            "the file names' order walks %.2fx the path through the nearest cameras: names and camera "
-            "positions disagree about the capture order; %s",
-            ratio,
-            "following the positions (--order capture keeps the names' order)"
-            if order == "auto"
-            else "keeping the names' order as asked (--order auto follows the positions)",
-        )
-        return nn if order == "auto" else capture
-    return capture
-
-
-def _indices_along(scene: Scene, seq: np.ndarray) -> np.ndarray:
-    """Index of each view along the path: the frames' own when monotonic along it, else positions."""
-    own = np.array([scene.frames[i].index for i in seq], dtype=np.float64)
-    steps = np.diff(own)
-    if len(own) < 2 or np.all(steps > 0) or np.all(steps < 0):
-        return own
-    log.info("frame indices are not monotonic along the path; planned indices count positions along it")
-    return np.arange(len(seq), dtype=np.float64)
-
-
-def reindexed(scene: Scene, seq: np.ndarray) -> Scene:
-    """The scene with its frames in path order and each frame's index = the index the plan uses for it.
-
-    Use it with a plan made with ``order="nearest"`` so source and planned frames share one index scale.
-    """
-    idx = _indices_along(scene, np.asarray(seq))
-    frames = [replace(scene.frames[i], index=float(k)) for i, k in zip(seq, idx)]
-    return replace(scene, frames=frames)
-
-
 # ---- the plan ------------------------------------------------------------------------------------
-
-
-def novel_name(index: float) -> str:
-    """File name of a planned view: ``novel_0003.50.png`` for index 3.5. It sorts by index only for
-    index >= 0; the written dense scene prefixes a rank (``sparself.io.dense.rank_names``) so that
-    names sort in its order for any index."""
-    return f"novel_{index:07.2f}.png"
 
 
 def _choose_gaps(scene: Scene, seq: np.ndarray, n_mid: int, how: str) -> np.ndarray:
@@ -217,9 +100,7 @@ def _choose_gaps(scene: Scene, seq: np.ndarray, n_mid: int, how: str) -> np.ndar
         return np.zeros(0, dtype=np.int64)
     if how == "largest":
         centers, quats, scale = scene.centers(), np.stack([p.qvec for p in scene.poses]), scene.scale()
-        widths = np.array(
-            [_step_costs(centers, quats, scale, seq[g], np.array([seq[g + 1]]))[0] for g in range(n_gaps)]
-        )
+        widths = np.array([step_costs(centers, quats, scale, seq[g], np.array([seq[g + 1]]))[0] for g in range(n_gaps)])
         # stable sort: among equal gaps the earlier wins, so the result is deterministic
         return np.sort(np.argsort(-widths, kind="stable")[:n_mid])
     # Evenly spread: the centre of each of n_mid equal stretches of the path, symmetric about its middle.
@@ -248,7 +129,7 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
         src = scene.source or "scene"
         raise InputError(f"{src}: needs at least 3 posed views to plan novel poses, got {n}")
     seq = plan_order(scene, cfg.order)
-    idx = _indices_along(scene, seq)
+    idx = indices_along(scene, seq)
     out: list[Frame] = []
     for g in _choose_gaps(scene, seq, int(cfg.n_mid), cfg.gaps):
         out.append(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], cfg.t_mid))
@@ -296,7 +177,7 @@ def candidate_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Candida
             f"{scene.source or 'scene'}: needs at least 3 posed views to plan novel poses, got {len(scene)}"
         )
     seq = plan_order(scene, cfg.order)
-    idx = _indices_along(scene, seq)
+    idx = indices_along(scene, seq)
     out = [
         Candidate(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], t), int(g))
         for g in range(len(seq) - 1)
@@ -342,202 +223,6 @@ def plan_sequence(scene: Scene, cfg: PlanConfig | None = None) -> tuple[Scene, l
 
 
 # ---- plan files ----------------------------------------------------------------------------------
-
-
-def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None, cfg: PlanConfig | None = None) -> Path:
-    """Write planned frames as JSON, atomically. qvec/tvec (COLMAP world-to-camera) are what
-    :func:`load_plan` reads; c2w and centre are there for people and other tools to read."""
-    path = Path(path)
-    doc = {
-        "format": PLAN_FORMAT,
-        "version": PLAN_VERSION,
-        "convention": "qvec [qw,qx,qy,qz] and tvec are COLMAP world-to-camera; c2w uses OpenCV camera axes",
-        "source": str(Path(scene.source).resolve()) if scene is not None and scene.source is not None else None,
-        **(_source_record(scene) if scene is not None else {}),
-        "config": asdict(cfg) if cfg is not None else None,
-        "n_source_views": len(scene) if scene is not None else None,
-        "cameras": (
-            {
-                str(cid): {"model": c.model, "width": c.width, "height": c.height, "params": list(c.params)}
-                for cid, c in scene.cameras.items()
-            }
-            if scene is not None
-            else None
-        ),
-        "frames": [
-            {
-                "name": f.name,
-                "index": float(f.index),
-                "camera_id": int(f.camera_id),
-                "qvec": [float(v) for v in f.pose.qvec],
-                "tvec": [float(v) for v in f.pose.tvec],
-                "center": [float(v) for v in f.pose.center],
-                "c2w": [[float(v) for v in row] for row in f.pose.c2w()[:3]],
-            }
-            for f in frames
-        ],
-    }
-    text = json.dumps(doc, indent=1, allow_nan=False)
-    with atomic_file(path) as tmp:
-        tmp.write_text(text + "\n")
-    return path
-
-
-def _source_record(scene: Scene) -> dict:
-    """What identifies the source scene in a plan file: its views' names and where its cameras are."""
-    return {
-        "source_frames": [f.name for f in scene.frames],
-        "source_center": [float(v) for v in scene.centers().mean(0)],
-        "source_scale": float(scene.scale()),
-    }
-
-
-def _check_source(path: Path, doc: dict, scene: Scene) -> None:
-    """Refuse a plan made for another scene: other views, other cameras, or indices the scene lacks."""
-    src = doc.get("source") or "another scene"
-    names, n = doc.get("source_frames"), doc.get("n_source_views")
-    if isinstance(n, int) and n != len(scene):
-        raise InputError(
-            f"{path}: plan was made for {n} views ({src}), this scene has {len(scene)} "
-            f"({scene.source}); make a new plan with `sparself plan`"
-        )
-    if isinstance(names, list) and sorted(map(str, names)) != sorted(f.name for f in scene.frames):
-        odd = sorted(set(map(str, names)) ^ {f.name for f in scene.frames})
-        raise InputError(
-            f"{path}: plan was made for other views ({src}; in only one of the two: "
-            f"{', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''}); make a new plan for "
-            f"{scene.source} with `sparself plan`"
-        )
-    c, sc = doc.get("source_center"), doc.get("source_scale")
-    if isinstance(c, list) and isinstance(sc, (int, float)) and len(c) == 3 and len(scene) > 0:
-        try:
-            c, sc = np.asarray(c, float), float(sc)
-        except (TypeError, ValueError, OverflowError):
-            raise InputError(f"{path}: source_center/source_scale are not numbers") from None
-        moved = float(np.linalg.norm(c - scene.centers().mean(0)))
-        if moved > 1e-3 * max(float(sc), 1e-12) or abs(float(sc) - scene.scale()) > 1e-3 * max(float(sc), 1e-12):
-            raise InputError(
-                f"{path}: plan was made for cameras elsewhere ({src}): same view names, other "
-                f"poses; make a new plan for {scene.source} with `sparself plan`"
-            )
-    for cid, rec in (doc.get("cameras") or {}).items():
-        cam = scene.cameras.get(int(cid)) if str(cid).isdigit() else None
-        if (
-            cam is not None
-            and isinstance(rec, dict)
-            and (rec.get("width"), rec.get("height")) != (cam.width, cam.height)
-        ):
-            raise InputError(
-                f"{path}: plan's camera {cid} is {rec.get('width')}x{rec.get('height')}, the scene's "
-                f"is {cam.width}x{cam.height} ({scene.source}); make a new plan with `sparself plan`"
-            )
-
-
-def _check_indices(path: Path, frames: list[Frame], scene: Scene) -> None:
-    """Planned indices must lie among (or just past) the scene's: a plan for a longer capture does not."""
-    own = np.array([f.index for f in scene.frames], dtype=np.float64)
-    if not len(own) or not frames:
-        return
-    lo, hi = own.min(), own.max()
-    span = max(hi - lo, 1.0)
-    bad = [f for f in frames if not lo - span <= f.index <= hi + span]
-    if bad:
-        raise InputError(
-            f"{path}: planned index {bad[0].index:g} ({bad[0].name}) is far outside this scene's "
-            f"views {lo:g}..{hi:g}: the plan was made for another scene"
-        )
-
-
-def _reject_constant(name: str):
-    raise ValueError(f"non-finite number {name}")
-
-
-def _vector(path: Path, i: int, rec: dict, key: str, n: int) -> np.ndarray:
-    try:
-        v = np.asarray(rec[key], dtype=np.float64)
-    except KeyError:
-        raise InputError(f"{path}: frame {i} has no {key!r}") from None
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(f"{path}: frame {i}: {key} is not a list of numbers") from None
-    if v.size != n:
-        raise InputError(f"{path}: frame {i}: {key} must have {n} numbers, got {v.size}")
-    if not np.all(np.isfinite(v)):
-        raise InputError(f"{path}: frame {i}: {key} contains NaN or inf")
-    return v.reshape(-1)
-
-
-def load_plan(path: Path, scene: Scene, *, check_source: bool = True) -> list[Frame]:
-    """Read a plan written by :func:`save_plan`; camera ids must exist in ``scene``.
-
-    Raises InputError naming the file on unreadable or invalid JSON, an unknown version, no frames,
-    NaN/inf, wrong shapes, unknown cameras, or a c2w that disagrees with qvec/tvec (someone edited one and
-    not the other). check_source: also refuse a plan made for another scene (other number of views, view
-    names, camera poses or image size, as recorded by :func:`save_plan`; indices far outside the scene's).
-    A plan without a version (written by hand) is read as version 1.
-    """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(), parse_constant=_reject_constant)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text (JSON) file") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"{path}: invalid JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
-    except ValueError as e:
-        raise InputError(f"{path}: invalid plan ({e})") from None
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror})") from None
-    if not isinstance(doc, dict) or doc.get("format") != PLAN_FORMAT or not isinstance(doc.get("frames"), list):
-        raise InputError(f"{path}: not a sparself plan (expected format {PLAN_FORMAT!r} with a 'frames' list)")
-    if doc.get("version", PLAN_VERSION) != PLAN_VERSION:
-        raise InputError(
-            f"{path}: plan version {doc.get('version')!r} is not one this sparself reads "
-            f"(version {PLAN_VERSION}); make the plan again with `sparself plan`"
-        )
-    if not doc["frames"]:
-        raise InputError(
-            f"{path}: the plan has no frames, so there is nothing to synthesize "
-            "(make it with --n-mid or --n-extra above 0)"
-        )
-    if check_source:
-        _check_source(path, doc, scene)
-    frames = [_plan_frame(path, i, rec, scene) for i, rec in enumerate(doc["frames"])]
-    # planned names become files beside the scene's own images: checked before anything is written
-    check_names([f.name for f in frames], path, what="frame name", extensions=IMAGE_EXTENSIONS)
-    if check_source:
-        _check_indices(path, frames, scene)
-    return frames
-
-
-def _plan_frame(path: Path, i: int, rec: object, scene: Scene) -> Frame:
-    """Frame ``i`` of a plan file, every field checked (InputError naming the file and the frame)."""
-    if not isinstance(rec, dict):
-        raise InputError(f"{path}: frame {i} is not an object")
-    q = _vector(path, i, rec, "qvec", 4)
-    t = _vector(path, i, rec, "tvec", 3)
-    if np.linalg.norm(q) < 1e-9:
-        raise InputError(f"{path}: frame {i}: qvec is zero")
-    try:
-        pose = Pose(q, t)
-        pose.R  # normalises qvec: fails when its norm overflows
-    except ValueError:
-        raise InputError(f"{path}: frame {i}: qvec is not a usable rotation") from None
-    if "c2w" in rec:
-        c2w = _vector(path, i, rec, "c2w", 12).reshape(3, 4)
-        if np.abs(c2w - pose.c2w()[:3]).max() > 1e-6:
-            raise InputError(f"{path}: frame {i}: c2w disagrees with qvec/tvec (edit both, or drop c2w)")
-    try:
-        index = float(rec["index"])
-        cam = int(rec.get("camera_id", 1))
-    except (KeyError, TypeError, ValueError, OverflowError):
-        raise InputError(f"{path}: frame {i}: missing or non-numeric index/camera_id") from None
-    if not math.isfinite(index):
-        raise InputError(f"{path}: frame {i}: index is not finite")
-    if cam not in scene.cameras:
-        raise InputError(f"{path}: frame {i}: camera {cam} is not a camera of the scene (has {sorted(scene.cameras)})")
-    name = rec.get("name") or novel_name(index)
-    return Frame(name=name, pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
 
 
 # ---- the `sparself plan` command ------------------------------------------------------------------
@@ -600,3 +285,42 @@ def make_plan(
         raise OutputError(f"{e.filename or out}: cannot write ({e.strerror or e})") from None
     log.debug("planned %d novel poses for %d views -> %s", len(frames), len(scene), out)
     return frames
+
+
+def save_plan(path: Path, frames: list[Frame], *, scene: Scene | None = None, cfg: PlanConfig | None = None) -> Path:
+    """Write planned frames as JSON, atomically. qvec/tvec (COLMAP world-to-camera) are what
+    :func:`load_plan` reads; c2w and centre are there for people and other tools to read."""
+    path = Path(path)
+    doc = {
+        "format": PLAN_FORMAT,
+        "version": PLAN_VERSION,
+        "convention": "qvec [qw,qx,qy,qz] and tvec are COLMAP world-to-camera; c2w uses OpenCV camera axes",
+        "source": str(Path(scene.source).resolve()) if scene is not None and scene.source is not None else None,
+        **(source_record(scene) if scene is not None else {}),
+        "config": asdict(cfg) if cfg is not None else None,
+        "n_source_views": len(scene) if scene is not None else None,
+        "cameras": (
+            {
+                str(cid): {"model": c.model, "width": c.width, "height": c.height, "params": list(c.params)}
+                for cid, c in scene.cameras.items()
+            }
+            if scene is not None
+            else None
+        ),
+        "frames": [
+            {
+                "name": f.name,
+                "index": float(f.index),
+                "camera_id": int(f.camera_id),
+                "qvec": [float(v) for v in f.pose.qvec],
+                "tvec": [float(v) for v in f.pose.tvec],
+                "center": [float(v) for v in f.pose.center],
+                "c2w": [[float(v) for v in row] for row in f.pose.c2w()[:3]],
+            }
+            for f in frames
+        ],
+    }
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    with atomic_file(path) as tmp:
+        tmp.write_text(text + "\n")
+    return path

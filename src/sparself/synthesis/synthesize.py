@@ -24,7 +24,8 @@ from sparself.core.errors import InputError
 from sparself.core.names import check_names
 from sparself.core.outputs import Input, check_not_input, check_output_dir, scene_folder, scene_inputs
 from sparself.model.query import Sources, flow_aligned, novel_queries, render_with_confidence
-from sparself.synthesis.plan import load_plan, plan_order, reindexed
+from sparself.synthesis.ordering import plan_order, reindexed
+from sparself.synthesis.plan_files import load_plan
 from sparself.synthesis.run import Run, load_run, recorded_scene, run_scene_mismatch
 from sparself.synthesis.train_config import amp_dtype, autocast
 
