@@ -13,6 +13,7 @@ from tqdm.auto import tqdm
 from sparself.capture.scene import Scene
 from sparself.evaluation.instruments import (
     reconstructor,
+    renders,
     with_images,
 )
 from sparself.evaluation.results import (
@@ -109,7 +110,7 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
 
 def render_targets(ev: SceneEval, renderer) -> np.ndarray:
     """The renderer's images at the scored held-out poses (poses only: no pixels reach it)."""
-    return np.stack([renderer.render(t.pose, ev.full.cameras[t.camera_id]) for t in ev.targets])
+    return renders(renderer, ev.full, ev.targets)
 
 
 def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:

@@ -124,3 +124,8 @@ def with_images(scene: Scene, extra: list[Frame], images, confidence: np.ndarray
 def images_and_confidence(out) -> tuple[np.ndarray, np.ndarray | None]:
     """A synthesizer's answer as (images, confidence or None): the network's is a Synthesized."""
     return (out.images, out.confidence) if isinstance(out, Synthesized) else (np.asarray(out), None)
+
+
+def renders(renderer: Renderer, scene: Scene, frames: list[Frame]) -> np.ndarray:
+    """(T, H, W, 3) renders of ``frames`` with the scene's cameras."""
+    return np.stack([renderer.render(f.pose, scene.cameras[f.camera_id]) for f in frames])

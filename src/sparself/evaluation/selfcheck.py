@@ -31,7 +31,7 @@ from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.options import check_choices, option
-from sparself.evaluation.instruments import SynthFn, images_and_confidence
+from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
     held_back_psnr,
@@ -134,11 +134,6 @@ def _resized(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     if (maps.shape[2], maps.shape[1]) == tuple(size):
         return np.asarray(maps, np.float32)
     return np.stack([resize_image(np.asarray(m, np.float32), size) for m in maps])
-
-
-def renders(renderer: Renderer, scene: Scene, frames: list[Frame]) -> np.ndarray:
-    """(T, H, W, 3) renders of ``frames`` with the scene's cameras."""
-    return np.stack([renderer.render(f.pose, scene.cameras[f.camera_id]) for f in frames])
 
 
 def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
