@@ -70,8 +70,8 @@ def read_input(path: Path, cfg: DensifyConfig, out: Path | None = None) -> Scene
 def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) -> Scene:
     """Photos (or a posed scene) -> poses -> plan -> train -> synthesize -> written dense scene.
 
-    photos_or_scene: a Scene, or a path read by ``sparself.io.read_scene`` or a folder of photos (SfM).
-    out: folder written atomically: the dense scene in ``out/scene/`` (``sparself.io.write_scene`` layout:
+    photos_or_scene: a Scene, or a path read by ``sparself.capture.io.read_scene`` or a folder of photos (SfM).
+    out: folder written atomically: the dense scene in ``out/scene/`` (``sparself.capture.io.write_scene`` layout:
     images/, sparse/0/, poses_bounds.npy, transforms.json), the plan in ``out/plan.json``, a camera plot
     ``out/cameras.png`` and, if ``keep_run``, the trained run in ``out/run/``. Returns the densified scene.
     """
@@ -172,5 +172,5 @@ def _views(
 
 def _with_points(scene: Scene, photos: Scene, holdout: tuple[str, ...]) -> Scene:
     """``scene`` with sparse points triangulated from the real photos of ``photos`` (never a held-out one)
-    when it has too few (:func:`sparself.triangulate.ensure_points`)."""
+    when it has too few (:func:`sparself.capture.triangulate.ensure_points`)."""
     return ensure_points(scene, photos.subset([i for i, f in enumerate(photos.frames) if f.name not in holdout]))

@@ -166,7 +166,7 @@ def _layout_lines(info: dict) -> list[str]:
 
 
 def describe(scene_path: Path, as_json: bool = False) -> str:
-    """Read a scene (anything :func:`sparself.io.read_scene` accepts) and describe it as text or JSON."""
+    """Read a scene (anything :func:`sparself.capture.io.read_scene` accepts) and describe it as text or JSON."""
     from sparself.capture.io import read_scene
 
     info = scene_info(read_scene(Path(scene_path)))

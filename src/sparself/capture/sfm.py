@@ -264,7 +264,7 @@ def recover_poses(
     beside: Path | None = None,
 ) -> tuple[Scene, SfmReport]:
     """Recover intrinsics and poses of the photos in ``image_folder`` (all images, or ``names``), check them
-    (:mod:`sparself.posecheck`: pose jumps between capture-order neighbours, weak photos, an implausible
+    (:mod:`sparself.capture.posecheck`: pose jumps between capture-order neighbours, weak photos, an implausible
     camera) and try to repair suspect poses (:func:`_repair`).
 
     Runs in a temporary folder (removed afterwards): beside the output ``beside``, named as its temporary
@@ -459,7 +459,7 @@ def poses_to_folder(
     image_folder: Path, out: Path, cfg: SfmConfig | None = None, *, overwrite: bool = False, images: str = "copy"
 ) -> SfmReport:
     """Recover poses of the photos in ``image_folder`` and write ``out`` atomically in the layout of
-    :func:`sparself.io.write_scene` (``images/``, ``sparse/0/``, ``poses_bounds.npy``, ``transforms.json``)
+    :func:`sparself.capture.io.write_scene` (``images/``, ``sparse/0/``, ``poses_bounds.npy``, ``transforms.json``)
     plus ``sfm_report.json`` (registered / unregistered names, timings, the options used).
 
     Only registered images are written to ``out/images``; images="copy" copies the original bytes,

@@ -29,7 +29,7 @@ def plane_homographies(
     """Destination-to-source homographies of fronto-parallel planes z = depth in the destination camera.
 
     K_src: (S, 3, 3), w2c_src: (S, 4, 4); K_dst: (3, 3), w2c_dst: (4, 4); depths: (D,).
-    Returns (S, D, 3, 3) H with p_src ~ H p_dst. Same formula as :func:`sparself.geometry.plane_homography`.
+    Returns (S, D, 3, 3) H with p_src ~ H p_dst. Same formula as :func:`sparself.core.geometry.plane_homography`.
     """
     rel = w2c_src @ torch.linalg.inv(w2c_dst)  # dst camera -> src camera, (S, 4, 4)
     R = rel[:, :3, :3]
@@ -125,7 +125,7 @@ def _backward_warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
 
 def flow_pair(i0: np.ndarray, i1: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Both images warped by optical flow to the intermediate time t: I0(x + F_t0) and I1(x + F_t1), with
-    the flows from t approximated as in Super SloMo (see :func:`sparself.baselines.flow`).
+    the flows from t approximated as in Super SloMo (see :func:`sparself.synthesis.baselines.flow`).
     i0, i1: (H, W, 3) float32 in [0, 1]; t in [0, 1] (beyond it extrapolates). -> two (H, W, 3)."""
     f01, f10 = _dis_flow(i0, i1), _dis_flow(i1, i0)
     ft0 = -(1 - t) * t * f01 + t * t * f10

@@ -61,7 +61,7 @@ def read_capture_list(path: Path) -> list[Path]:
 
 
 def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Path | None = None, **hooks) -> dict:
-    """Evaluate every scene (paths are read with sparself.io.read_scene); failures are recorded.
+    """Evaluate every scene (paths are read with sparself.capture.io.read_scene); failures are recorded.
 
     Returns {"settings", "scenes": [...], "not_run": {...}}. hooks are passed to :func:`evaluate_scene`.
     """

@@ -71,7 +71,7 @@ def versions() -> dict:
 
 
 def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
-    """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.train.train`` with
+    """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.synthesis.train.train`` with
     ``cfg.train`` (seed, size and epochs from the evaluation) on the inputs, in a temporary run folder, and
     returns the bound ``synthesize(scene, targets) -> Synthesized`` (images and confidence)."""
     # resolved (and warned about) once, not once per scene and seed

@@ -10,7 +10,7 @@ Protocol (per scene, in this order):
    inputs): an *extrapolation margin* of frames is kept beyond each end (``extrapolation_margin``; auto:
    one input spacing, at least ``holdout_every + 1`` frames so a held-out frame lies beyond each end;
    0: none), and N evenly spaced frames of the rest inside the margins are the sparse input (N = 25 by
-   default). Margin frames are never inputs. The planned midpoints (sparself.plan, 8 by default) are
+   default). Margin frames are never inputs. The planned midpoints (sparself.synthesis.plan, 8 by default) are
    *snapped* to the real frame nearest the planned index in their gap, and the extrapolated poses
    (t = 1.2, 2 by default) to the margin frame nearest the planned index beyond the same end input, so
    each has a real photo at exactly its pose: the ground truth for view synthesis at planned poses
@@ -20,7 +20,7 @@ Protocol (per scene, in this order):
    oracle is run and midpoints are not scored separately (the held-out frames are the midpoints).
 4. **Sparse points** (``points``): the capture's own points were made from all its photos, held-out ones
    included, so by default they are dropped and points are triangulated from the N inputs' photos at their
-   known poses (:func:`input_points`, sparself.triangulate), before anything is fitted. Every row of a
+   known poses (:func:`input_points`, sparself.capture.triangulate), before anything is fitted. Every row of a
    scene (N, N + synthesized, weighted, oracle) and the network's and baselines' depth range start from
    these same points. ``points="capture"`` keeps the capture's points (runs before this option).
 5. Two questions:

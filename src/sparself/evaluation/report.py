@@ -1,4 +1,5 @@
-"""The evaluation report: ``report.md`` + ``report.html`` + PNG figures from :mod:`sparself.evaluate` results.
+"""The evaluation report: ``report.md`` + ``report.html`` + PNG figures from the results of
+:mod:`sparself.evaluation.evaluate`.
 
 It opens with the verdict per reconstructor (:mod:`sparself.evaluation.verdict`) and, for a sweep over N,
 the PSNR-against-N plot; then tables that follow the paper's Tables 1-3 (per scene and average, N vs N +

@@ -1,5 +1,5 @@
-"""Typed records of the evaluation's results, written by :mod:`sparself.evaluate` and read by
-:mod:`sparself.report` (``results.json`` holds their :meth:`to_json` form).
+"""Typed records of the evaluation's results, written by :mod:`sparself.evaluation.evaluate` and read by
+:mod:`sparself.evaluation.report` (``results.json`` holds their :meth:`to_json` form).
 
 - :class:`FrameScore`: one rendered frame against its real photo (PSNR, SSIM, LPIPS or None).
 - :class:`ScoredSet`: one method's frames of one set (held-out poses, midpoints, or a reconstruction's

@@ -7,7 +7,7 @@
   between the two sources, plus a small residual; the LSTM output modulates its features (FiLM).
   A learned per-pixel gate mixes that depth-resolved colour with a fallback: the distance-weighted blend
   of the two sources aligned to the target by optical flow (``fallback="flow"``, the default of
-  :class:`sparself.train.TrainConfig`) or as they are (``"blend"``), so that where no depth is
+  :class:`sparself.synthesis.train.TrainConfig`) or as they are (``"blend"``), so that where no depth is
   photo-consistent (wide-baseline rings, dark backgrounds) the decoder can do what flow interpolation
   does. It is fully convolutional, so it trains on crops and runs at any resolution.
   With more than two sources per query (``TrainConfig.sources``), the matching cost is the mean over
@@ -111,7 +111,7 @@ def sweep_volume(
     D: the sources mapped by their intrinsics only (``K_src K_dst^-1``: the source image resized/cropped
     to the target camera, as the plain-blend baseline uses it), with validity times the pair's
     :func:`blend_weights` (0 for further sources). plain: (2, 3, h, w), the pair already aligned to the
-    target (e.g. by flow, :func:`sparself.warp.flow_pair`), used for plane D instead (validity 1).
+    target (e.g. by flow, :func:`sparself.core.warp.flow_pair`), used for plane D instead (validity 1).
     """
     n = src.shape[0]
     vol, valid = plane_sweep(src, K_src, w2c_src, K_dst, w2c_dst, depths, out_hw)  # (n,D,3,h,w), (n,D,1,h,w)

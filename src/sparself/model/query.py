@@ -281,7 +281,7 @@ def novel_queries(
 
 def flow_aligned(sources: Sources, queries: Queries) -> Queries:
     """The queries with the first two sources of each set aligned to it by optical flow
-    (:func:`sparself.warp.flow_pair`, at the query's position between them, clipped to [-0.5, 1.5])."""
+    (:func:`sparself.core.warp.flow_pair`, at the query's position between them, clipped to [-0.5, 1.5])."""
     imgs = sources.images.float().permute(0, 2, 3, 1).cpu().numpy()
     out = []
     for b, (s, q) in enumerate(zip(queries.sets, queries.positions)):

@@ -1,7 +1,7 @@
 """LLFF-style multi-plane image (MPI) renderer without learned weights (paper section 3.5, LLFF [11]).
 
 One MPI per source view ("reference"): D fronto-parallel planes in the reference camera, uniform in
-disparity between the scene's near and far bounds (:func:`sparself.geometry.inverse_depth_planes`).
+disparity between the scene's near and far bounds (:func:`sparself.core.geometry.inverse_depth_planes`).
 Where LLFF predicts each plane's RGBA with a network, we derive it from the plane-sweep volume of the
 reference's 5-view neighbourhood (the reference + its ``neighbors`` nearest cameras by centre distance):
 

@@ -133,7 +133,7 @@ def flow(scene: Scene, targets: list[Frame], rot_weight: float = 1.0, **_) -> np
 
     With F01, F10 the flows between the neighbours, the flows from the intermediate frame are
     approximated as F_t0 = -(1-t) t F01 + t^2 F10 and F_t1 = (1-t)^2 F01 - t (1-t) F10 (Jiang et al.,
-    Super SloMo, 2018; :func:`sparself.warp.flow_pair`); the result is (1-t) I0(x + F_t0) + t I1(x + F_t1).
+    Super SloMo, 2018; :func:`sparself.core.warp.flow_pair`); the result is (1-t) I0(x + F_t0) + t I1(x + F_t1).
     """
     out = []
     for tg in targets:

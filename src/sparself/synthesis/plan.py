@@ -2,7 +2,7 @@
 beyond the ends of the capture path.
 
 A planned pose is the LERP of two camera centres and the shortest-arc SLERP of their rotations
-(:func:`sparself.geometry.interpolate_pose`), at t = 0.5 between two consecutive views and at t = 1.2
+(:func:`sparself.core.geometry.interpolate_pose`), at t = 0.5 between two consecutive views and at t = 1.2
 past the last (and, mirrored, the first) view. By default 8 midpoints + 2 extrapolations = 10 new poses,
 the paper's 25 + 10 setting.
 

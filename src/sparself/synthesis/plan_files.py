@@ -180,6 +180,6 @@ def plan_frame(path: Path, i: int, rec: object, scene: Scene) -> Frame:
 
 def novel_name(index: float) -> str:
     """File name of a planned view: ``novel_0003.50.png`` for index 3.5. It sorts by index only for
-    index >= 0; the written dense scene prefixes a rank (``sparself.io.dense.rank_names``) so that
+    index >= 0; the written dense scene prefixes a rank (``sparself.capture.io.dense.rank_names``) so that
     names sort in its order for any index."""
     return f"novel_{index:07.2f}.png"

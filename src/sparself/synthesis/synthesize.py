@@ -67,7 +67,7 @@ def synthesize(run_or_model, scene: Scene, targets: list[Frame]) -> np.ndarray:
 def synthesize_with_confidence(run_or_model, scene: Scene, targets: list[Frame]) -> Synthesized:
     """Synthesize the views of ``targets`` from the source frames of ``scene``.
 
-    run_or_model: a :class:`sparself.train.Run` or a run folder / checkpoint path.
+    run_or_model: a :class:`sparself.synthesis.run.Run` or a run folder / checkpoint path.
     scene: source frames with images (at any resolution: their cameras give the size).
     targets: Frames with pose, camera_id (a camera of ``scene``), fractional index; their images are
     never read. Returns images (T, H, W, 3) float32 in [0, 1] at the targets' camera size (all equal),
@@ -149,7 +149,7 @@ def synthesize_plan(
 ) -> Scene:
     """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene.
     downscaled: also write the ``images_2/4/8`` copies; triangulate: a scene without sparse points gets
-    points triangulated from its real photos (:func:`sparself.triangulate.ensure_points`)."""
+    points triangulated from its real photos (:func:`sparself.capture.triangulate.ensure_points`)."""
     _check_order(Path(run_path), Path(plan))
     inputs = [Input("run folder", run_path), Input("plan file", plan), Input("scene", scene_path)]
     check_not_input(Path(out), inputs)

@@ -497,7 +497,7 @@ def train_scene(
     resume: bool = False,
     overwrite: bool = False,
 ) -> Run:
-    """`sparself train`: read a scene (anything ``sparself.io.read_scene`` accepts) and train on it."""
+    """`sparself train`: read a scene (anything ``sparself.capture.io.read_scene`` accepts) and train on it."""
     check_not_input(out, [Input("scene", scene_path)])
     return train(sio.read_scene(Path(scene_path)), out, cfg, resume=resume, overwrite=overwrite)
 

@@ -10,7 +10,7 @@ COLMAP, gsplat, nerfstudio and LLFF/NeRF loaders read unchanged::
     out_dir/poses_bounds.npy             LLFF
     out_dir/transforms.json              nerfstudio (+ sparse_pc.ply when the scene has points)
 
-A scene with synthesized frames (a dense scene) also gets, see :mod:`sparself.io.dense`: names in an order
+A scene with synthesized frames (a dense scene) also gets, see :mod:`sparself.capture.io.dense`: names in an order
 that keeps synthesized frames off every 8th position, ``train/val/test_list.txt`` (+ ``sparse/0/test.txt``),
 split lists in ``transforms.json``, ``sparself.json``, and ``images_2/4/8`` copies.
 """
@@ -165,7 +165,7 @@ def write_scene_into(
             "link" (symlinks to the originals where possible), or "none" (poses only).
     text: also write the COLMAP model as ``.txt`` files beside the ``.bin`` ones in ``sparse/0``.
     dense: provenance, user hold-out and options of a scene with synthesized frames (default
-           :class:`DenseInfo`); such a scene is renamed and ordered by :func:`sparself.io.dense.layout`.
+           :class:`DenseInfo`); such a scene is renamed and ordered by :func:`sparself.capture.io.dense.layout`.
     -> the scene as written (frame paths pointing into ``folder/images``).
     """
     folder = Path(folder)

@@ -271,7 +271,7 @@ def read_colmap(path: Path, images: Path | None = None, *, require_images: bool 
     images: the images folder; default ``images/`` beside ``sparse/``.
     require_images: a registered image whose file is missing raises InputError (else its path is None).
     Masks in ``masks/`` beside ``images/`` (``<stem>.png`` for every image, as sparself writes a dense
-    scene) become the frames' ``mask`` (:func:`sparself.io.dense.read_masks_beside`).
+    scene) become the frames' ``mask`` (:func:`sparself.capture.io.dense.read_masks_beside`).
     """
     path = Path(path)
     if not path.exists():

@@ -99,7 +99,7 @@ def read_llff(path: Path, images: Path | None = None) -> Scene:
     ``images``), focal lengths are scaled to them, as NeRF's loader does.
     ``Scene.bounds`` = (min near, max far); per-view bounds are in ``frame_bounds`` by name.
     Masks beside the images (``masks/`` for ``images/``, ``masks_4/`` for ``images_4/``; ``<stem>.png`` for
-    every image) become the frames' ``mask`` (:func:`sparself.io.dense.read_masks_beside`).
+    every image) become the frames' ``mask`` (:func:`sparself.capture.io.dense.read_masks_beside`).
     """
     path = Path(path)
     npy = path / FILENAME if path.is_dir() else path

@@ -82,7 +82,8 @@ def _resolve(base: Path, file_path: str) -> Path:
 
 
 def _mask(fr: dict, js: Path, cam: Camera, where: str) -> Path | None:
-    """A frame's ``mask_path`` (relative to ``transforms.json``), checked (:func:`sparself.io.dense.checked_mask`):
+    """A frame's ``mask_path`` (relative to ``transforms.json``), checked
+    (:func:`sparself.capture.io.dense.checked_mask`):
     None when it has none or it is all 255; InputError naming the file when it is missing or unreadable."""
     if fr.get("mask_path") is None:
         return None
@@ -197,7 +198,7 @@ def transforms_dict(scene: Scene, image_prefix: str = "images/", split=None, mas
     """The ``transforms.json`` content: global intrinsics when the scene has one camera, else per frame;
     each frame flagged ``"synthetic"``; with a :class:`sparself.capture.io.dense.DenseSplit`, the ``train_filenames``,
     ``val_filenames`` and ``test_filenames`` lists (nerfstudio needs all three when one is present);
-    with ``masks``, each frame's ``mask_path`` (``masks/<stem>.png``, :func:`sparself.io.dense.write_masks`)."""
+    with ``masks``, each frame's ``mask_path`` (``masks/<stem>.png``, :func:`sparself.capture.io.dense.write_masks`)."""
     order = frame_name_order(scene)
     one = len({scene.frames[i].camera_id for i in order}) == 1
     out: dict = dict(_intrinsics(scene.camera(order[0]))) if one else {}
