@@ -48,6 +48,7 @@ from sparself.evaluation.weighting import (
 from sparself.model.fixer import Fixer
 from sparself.recon import Renderer, get_reconstructor
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
+from sparself.synthesis.synthesize import Synthesized
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +118,7 @@ class Checked:
     confidence: np.ndarray | None
     record: SelfCheck | None  # None: not checked (recon none)
     fixer: Fixer | None = None  # the fixer the written views went through (None: not used)
+    reference: Renderer | None = None  # the fit on all inputs at the check size whose renders it merged in
 
 
 def check_fit(cfg: SelfCheckConfig) -> Callable[[Scene], Renderer]:
@@ -284,10 +286,28 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
     images, conf = images_and_confidence(final)
     idx = np.flatnonzero(keep)
     fixer = None if fix is None else fix.fixer
-    if fixer is not None and len(idx):
-        images = fixed(fixer, images, renders(fit(small), small, planned), conf)
+    reference = fit(small) if fixer is not None and len(idx) else None
+    if fixer is not None and reference is not None:
+        images = fixed(fixer, images, renders(reference, small, planned), conf)
     exported = _exported(images, conf, fits.reference, d.weight, cfg)
-    return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer)
+    return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer, reference)
+
+
+def checked_views(
+    inputs: Scene,
+    paper: list[Frame],
+    plan: PlanConfig,
+    synth: SynthFn,
+    cfg: SelfCheckConfig,
+    sources: Scene | None = None,
+) -> tuple[list[Frame], Checked, Synthesized | np.ndarray]:
+    """What ``densify --recon cfg.recon`` writes: (the planned frames, the kept views, the network's answer
+    for every planned frame). The poses are ``paper`` (the paper's plan) or, with ``cfg.plan_mode`` weak,
+    :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
+    :func:`self_check` on ``inputs``."""
+    targets = weakest_plan(at_check_size(inputs, cfg), plan, check_fit(cfg)) if cfg.plan_mode == "weak" else paper
+    final = synth(inputs if sources is None else sources, targets)
+    return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode), final
 
 
 def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:
