@@ -77,6 +77,8 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     test = {f["source_name"] for f in doc["frames"] if f["name"] in doc["split"]["test"]}
     inputs = [f.name for f in _line().frames if f.name not in test]  # the test photos never reach the check
     assert test and rec.validation == (inputs[2], inputs[7])  # every 5th interior input, from the third
+    # the fixer was tried on those same photos; exact views cannot be beaten, so it was not used
+    assert rec.fixer is not None and rec.fixer.held_back == rec.validation and not rec.fixer.used
     written = json.loads((tmp_path / "out" / "plan.json").read_text())["frames"]
     for f, w in zip(planned, written):
         np.testing.assert_allclose(w["qvec"], f.pose.qvec) and np.testing.assert_allclose(w["tvec"], f.pose.tvec)
