@@ -94,6 +94,7 @@ def _tiny_cfg(**kw) -> EvalConfig:
         examples=1,
         lpips=False,
         progress=False,
+        check_steps=10,
     )
     base.update(kw)
     return EvalConfig(**base)
@@ -154,6 +155,13 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
         assert d["status"] == "ok", d.get("error")
         assert d["base"]["views"] == 5 and d["sparself"]["views"] == 8 and d["oracle"]["views"] == 8
         assert len(d["base"]["frames"]) == len(split.eval)
+    # what densify writes for the NeRF, checked on held-back *inputs* only (the held-out photos are in the vault)
+    checked = s["densification"]["nerf"]["sparself_checked"]
+    assert checked["summary"]["psnr"]["n_seeds"] == 2 and len(checked["per_seed"]) == 2
+    inputs = {scene.frames[i].name for i in split.inputs}
+    for p in checked["per_seed"]:
+        assert set(p["selfcheck"]["validation"]) <= inputs and p["selfcheck"]["recon"] == "nerf"
+    assert "sparself_checked" not in s["densification"]["nearest"]  # no densify --recon for it
     # seed-dependent synthesizer: 2 seeds give a real spread
     assert s["view_synthesis"]["sparself"]["summary"]["psnr"]["n_seeds"] == 2
     assert s["view_synthesis"]["sparself"]["summary"]["psnr"]["std"] > 0

@@ -18,10 +18,10 @@ from sparself.core.errors import InputError
 from sparself.core.options import option
 from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
 from sparself.core.space import MB, check_free_space, files_size
-from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, at_check_size, check_fit, self_check, weakest_plan
+from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
 from sparself.synthesis.run import Run
-from sparself.synthesis.synthesize import densify_scene, synthesize_with_confidence
+from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
 
@@ -161,12 +161,11 @@ def _views(
             log.info("--recon none: the paper's plan (planning where a reconstruction is weak needs one)")
         syn = synthesize_with_confidence(run, scene.without(holdout), targets)
         return targets, Checked(targets, syn.images, syn.confidence, None), syn.sources_by_name(targets)
-    inputs = written.without(holdout)
-    if check.plan_mode == "weak":
-        targets = weakest_plan(at_check_size(inputs, check), cfg.plan, check_fit(check))
-    final = synthesize_with_confidence(run, scene.without(holdout), targets)
     synth = lambda sc, tg, **_: synthesize_with_confidence(run, sc, tg)  # noqa: E731
-    checked = self_check(inputs, targets, synth, final, check, check.plan_mode)
+    targets, checked, final = checked_views(
+        written.without(holdout), targets, cfg.plan, synth, check, scene.without(holdout)
+    )
+    assert isinstance(final, Synthesized)  # the run's answer, not a baseline's array
     return targets, checked, final.sources_by_name(targets)
 
 

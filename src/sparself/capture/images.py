@@ -271,6 +271,13 @@ def resize_image(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(cv2.resize(img, (w, h), interpolation=interp), dtype=np.float32)
 
 
+def resize_images(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(T, H, W[, 3]) images or maps at size = (W, H) (:func:`resize_image` each; as they are at that size)."""
+    if (maps.shape[2], maps.shape[1]) == tuple(size):
+        return np.asarray(maps, np.float32)
+    return np.stack([resize_image(np.asarray(m, np.float32), size) for m in maps])
+
+
 def save_image(path: Path, img: np.ndarray) -> None:
     """Write (H, W, 3) float in [0, 1] as 8-bit PNG or JPEG (by suffix)."""
     arr = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

@@ -67,6 +67,15 @@ class EvalConfig:
     )
     recon_seed: int = option(0, "seed of the reconstructors")
     max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; auto: all)")
+    checked: bool = option(
+        True,
+        "'N + sparself, checked': each reconstructor also refitted on what `densify --recon R` writes for it "
+        "(views planned where R is weak, fixed, and kept only where they raise R's PSNR on held-back inputs)",
+    )
+    check_plan: Literal["weak", "paper"] = option(
+        "weak", "where the checked row's views go: where R is weak, or the paper's plan (the planned poses)"
+    )
+    check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(
         True,
@@ -108,6 +117,8 @@ class EvalConfig:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
         if self.splat_steps_per_view is not None and self.splat_steps_per_view < 1:
             raise ConfigError(f"splat_steps_per_view must be at least 1, got {self.splat_steps_per_view}")
+        if self.check_steps < 1:
+            raise ConfigError(f"check_steps must be >= 1, got {self.check_steps}")
         if self.first_seed < 0:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:

@@ -11,6 +11,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from sparself.capture.scene import Scene
+from sparself.evaluation.checked import checked_fits
 from sparself.evaluation.instruments import (
     reconstructor,
     renders,
@@ -18,6 +19,7 @@ from sparself.evaluation.instruments import (
 )
 from sparself.evaluation.results import (
     NETWORK,
+    NETWORK_CHECKED,
     NETWORK_WEIGHTED,
     SeededSets,
     share_of_oracle_gain,
@@ -74,7 +76,12 @@ def oracle_share(entry: dict) -> None:
     entry["instrument"] = (
         "ok" if o > b else (f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
     )
-    for key, share in ((NETWORK, "oracle_share"), (NETWORK_WEIGHTED, "oracle_share_weighted")):
+    shares = (
+        (NETWORK, "oracle_share"),
+        (NETWORK_WEIGHTED, "oracle_share_weighted"),
+        (NETWORK_CHECKED, "oracle_share_checked"),
+    )
+    for key, share in shares:
         if "summary" in entry.get(key, {}):
             entry[share] = share_of_oracle_gain(b, entry[key]["summary"]["psnr"]["mean"], o)
 
@@ -82,7 +89,7 @@ def oracle_share(entry: dict) -> None:
 def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
     """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
     (which keeps what was done if a fit fails)."""
-    net = SeededSets()
+    net, base = SeededSets(), None
     for key, seed, sc in tqdm(
         densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
     ):
@@ -91,6 +98,7 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
         imgs = render_targets(ev, renderer)
         label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
         scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
+        base = scored if key == "base" else base
         if seed is None:
             entry[key] = scored.to_json()
         else:
@@ -104,6 +112,12 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
         except Exception as e:  # the plain results stand without it
             log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
             entry[NETWORK_WEIGHTED] = {"error": f"{type(e).__name__}: {e}"}
+    if base is not None:
+        try:
+            checked_fits(ev, rname, fit, entry, base)
+        except Exception as e:  # the other rows stand without it
+            log.warning("%s: %s checked densification failed: %s", ev.name, rname, e)
+            entry[NETWORK_CHECKED] = {"error": f"{type(e).__name__}: {e}"}
     oracle_share(entry)
     entry["status"] = "ok"
 
@@ -118,8 +132,7 @@ def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], e
     confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
     run's first seed (its network's views synthesized again without the held-back inputs)."""
     if ev.validation is None:
-        assert ev.net_synth is not None  # kept by the first seed, which runs before any weighted fit
-        ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synth)
+        ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synths[0])
     choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
     choice["chosen_on_seed"] = ev.cfg.first_seed
     sets, records = SeededSets(), []

@@ -269,9 +269,9 @@ def network_synthesis(ev: SceneEval, network: Callable[[Scene, int], SynthFn] | 
         range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False
     ):
         synth = network(ev.inputs, seed)
-        if seed == first:
-            ev.net_synth = synth
-        imgs, _ = images_and_confidence(synth(ev.inputs, ev.targets))
+        ev.net_synths.append(synth)
+        imgs, conf = images_and_confidence(synth(ev.inputs, ev.targets))
+        ev.net_targets.append((imgs, conf))
         held.per_seed.append(ev.score(imgs, f"{NETWORK} seed {seed}" if seed else NETWORK, ev.scored, seed=seed))
         imgs, conf = images_and_confidence(synth(ev.inputs, ev.planned))
         ev.net_planned.append(imgs)

@@ -30,6 +30,8 @@ from sparself.evaluation.report_context import (
 )
 from sparself.evaluation.results import (
     NETWORK,
+    NETWORK_CHECKED,
+    NETWORK_FIXED,
     NETWORK_WEIGHTED,
     mean_of,
 )
@@ -229,6 +231,8 @@ def _recon_comparisons(doc: Doc, c: Ctx) -> None:
         "base": "N only",
         NETWORK: "N + sparself",
         NETWORK_WEIGHTED: "N + sparself, weighted",
+        NETWORK_CHECKED: "N + sparself, checked (what densify writes)",
+        NETWORK_FIXED: "fixer's views (not a fit)",
         "oracle": "N + real (oracle)",
     }
     for r in c.recons:
@@ -247,14 +251,17 @@ def _recon_comparisons(doc: Doc, c: Ctx) -> None:
                     and "summary" in s["densification"][r][k]
                 ):
                     keys.append(k)
-        first = ["base", NETWORK, NETWORK_WEIGHTED]
+        first = ["base", NETWORK, NETWORK_WEIGHTED, NETWORK_CHECKED]
         order = first + [k for k in keys if k not in first + ["oracle"]] + ["oracle"]
         order = [k for k in order if k in keys]
-        shares = [("oracle_share", NETWORK, "share of oracle gain")] + (
-            [("oracle_share_weighted", NETWORK_WEIGHTED, "share of oracle gain (weighted)")]
-            if NETWORK_WEIGHTED in order
-            else []
-        )
+        shares = [("oracle_share", NETWORK, "share of oracle gain")] + [
+            (key, row, f"share of oracle gain ({what})")
+            for key, row, what in (
+                ("oracle_share_weighted", NETWORK_WEIGHTED, "weighted"),
+                ("oracle_share_checked", NETWORK_CHECKED, "checked"),
+            )
+            if row in order
+        ]
         for metric, mlabel in c.metrics:
             header = (
                 ["Scene"]

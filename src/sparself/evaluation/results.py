@@ -23,6 +23,8 @@ from sparself.core.metrics import summarize
 NETWORK = "sparself"  # the CNN-LSTM's name in results and reports
 # its densification refit with per-pixel confidence and a synthetic-frame loss weight chosen on input views
 NETWORK_WEIGHTED = "sparself_weighted"
+NETWORK_CHECKED = "sparself_checked"  # what `densify --recon R` writes: planned where weak, fixed, kept if it pays
+NETWORK_FIXED = "sparself_fixed_views"  # the fixer's views at the held-out poses (a view-synthesis score)
 METRICS = ("psnr", "ssim", "lpips")
 INTERPOLATED, EXTRAPOLATED = "interpolated", "extrapolated"
 MIN_ORACLE_GAIN_DB = 0.1  # below this the oracle share is not reported

@@ -44,7 +44,8 @@ class SceneEval:
     ex_dir: Path | None = None
     net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
     net_conf: list[np.ndarray | None] = field(default_factory=list)  # their confidence (T, H, W), per seed
-    net_synth: SynthFn | None = None  # the first seed's network, kept to synthesize the validation views
+    net_synths: list[SynthFn] = field(default_factory=list)  # per seed: the network, kept for the self-check
+    net_targets: list[tuple[np.ndarray, np.ndarray | None]] = field(default_factory=list)  # per seed: at the targets
     validation: ValidationViews | None = None  # made once per scene, shared by every reconstructor
     baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
     on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step

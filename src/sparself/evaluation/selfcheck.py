@@ -9,6 +9,10 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
   reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
   the PSNR change at the held-back inputs nearest to it; views that gain are kept (refitted alone to confirm),
   and when nothing beats the fit without views, none is written.
+* **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on the held-back
+  inputs merges each view with the render of the fit without it, pixel by pixel; the merged views replace
+  the network's when they beat both the views and the render on those photos (each scored by a fixer that
+  did not train on it).
 * **Per pixel** (:func:`informative_confidence`): where a view agrees with the render of the fit without it
   within ``agree_within``, it adds nothing that reconstruction does not already make, so its confidence is
   lowered there (written as the exported mask, so gsplat/nerfstudio users get the same effect).
@@ -26,11 +30,12 @@ from typing import Callable, Literal
 import numpy as np
 import torch
 
-from sparself.capture.images import resize_image
+from sparself.capture.images import resize_images
 from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.options import check_choices, option
+from sparself.evaluation.fixing import FixerFit, fixed, held_back_fixer
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -40,11 +45,14 @@ from sparself.evaluation.weighting import (
     validation_views,
     weight_scores,
 )
+from sparself.model.fixer import Fixer
 from sparself.recon import Renderer, get_reconstructor
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
+from sparself.synthesis.synthesize import Synthesized
 
 log = logging.getLogger(__name__)
 
+FIXER_STEPS = 300  # optimisation steps of each fixer fit (a few seconds at the check size)
 BLUR = 5  # px: the view-minus-render difference is averaged over this window before it is compared
 
 
@@ -80,6 +88,11 @@ class SelfCheckConfig:
     )
     agree_weight: float = option(0.3, "the factor the confidence of such agreeing pixels is multiplied by")
     check_seed: int = option(0, "seed of the self-check's fits")
+    fixer: bool = option(
+        True,
+        "merge each view with the render of the fit without it, pixel by pixel, by a small network trained on "
+        "the held-back input photos (used only when it beats both the views and the render there)",
+    )
 
     def validate(self) -> None:
         check_choices(self)
@@ -104,6 +117,8 @@ class Checked:
     images: np.ndarray
     confidence: np.ndarray | None
     record: SelfCheck | None  # None: not checked (recon none)
+    fixer: Fixer | None = None  # the fixer the written views went through (None: not used)
+    reference: Renderer | None = None  # the fit on all inputs at the check size whose renders it merged in
 
 
 def check_fit(cfg: SelfCheckConfig) -> Callable[[Scene], Renderer]:
@@ -127,13 +142,6 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     """The scene with images in memory at ``cfg.check_size`` (never enlarged)."""
     side = max(max(c.width, c.height) for c in scene.cameras.values())
     return preloaded(scene.resized(cfg.check_size) if side > cfg.check_size else scene)
-
-
-def _resized(maps: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """(T, H, W[, 3]) images or maps at size (W, H)."""
-    if (maps.shape[2], maps.shape[1]) == tuple(size):
-        return np.asarray(maps, np.float32)
-    return np.stack([resize_image(np.asarray(m, np.float32), size) for m in maps])
 
 
 def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
@@ -192,12 +200,29 @@ class _Fits:
     reference: np.ndarray  # (T, h, w, 3) renders of the fit without views at the planned poses
 
 
+def _validation_views(
+    inputs: Scene, small: Scene, planned: list[Frame], synth: SynthFn, base: Renderer, cfg: SelfCheckConfig
+) -> tuple[ValidationViews, FixerFit | None]:
+    """The planned views synthesized without the held-back inputs, at ``small``'s size, fixed with the render
+    of ``base`` (the fit without the held-back inputs) when the fixer beats both on those inputs."""
+    cam = small.cameras[planned[0].camera_id]
+    size = (cam.width, cam.height)
+    raw = validation_views(inputs, planned, synth)
+    conf = None if raw.confidence is None else resize_images(raw.confidence, size)
+    vv = ValidationViews(resize_images(raw.images, size), conf, raw.sources)
+    if not cfg.fixer:
+        return vv, None
+    fix = held_back_fixer(inputs, small, base, synth, FIXER_STEPS, cfg.check_seed)
+    if fix.fixer is None:
+        return vv, fix
+    return replace(vv, images=fixed(fix.fixer, vv.images, renders(base, small, planned), vv.confidence)), fix
+
+
 def _validation_fits(
-    small: Scene, planned: list[Frame], views: ValidationViews, fit, cfg
+    small: Scene, planned: list[Frame], views: ValidationViews, base: Renderer, fit, cfg
 ) -> tuple[_Fits, ValidationViews]:
-    """Fit without views, lower the validation views' confidence against its render, fit with them per weight."""
-    _, train = validation_split(small)
-    base = fit(train)
+    """Lower the validation views' confidence against the render of the fit without views, fit with them per
+    weight."""
     ref = renders(base, small, planned)
     views = replace(views, confidence=informative_confidence(views.images, views.confidence, ref, cfg))
     return _Fits(held_back_psnr(small, base), weight_scores(small, planned, views, cfg.check_weights, fit), ref), views
@@ -238,12 +263,9 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
     Returns the kept views with their exported confidence and the decision, logged in one line."""
     fit = check_fit(cfg)
     small = at_check_size(inputs, cfg)
-    cam = small.cameras[planned[0].camera_id]
-    size = (cam.width, cam.height)
-    raw = validation_views(inputs, planned, synth)
-    conf = None if raw.confidence is None else _resized(raw.confidence, size)
-    vv = ValidationViews(_resized(raw.images, size), conf, raw.sources)
-    fits, vv = _validation_fits(small, planned, vv, fit, cfg)
+    base = fit(validation_split(small)[1])
+    vv, fix = _validation_views(inputs, small, planned, synth, base, cfg)
+    fits, vv = _validation_fits(small, planned, vv, base, fit, cfg)
     d = _decide(small, planned, vv, fits, fit, cfg)
     without = float(fits.without.mean())
     paid = d.best - without > cfg.min_gain
@@ -258,20 +280,42 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
         weight=d.weight if paid else None,
         views=tuple(ViewCheck(f.name, float(f.index), float(g), bool(k)) for f, g, k in zip(planned, d.gains, keep)),
         reason=_reason(cfg.recon, int(keep.sum()), len(planned), d, without),
+        fixer=None if fix is None else fix.record,
     )
     (log.info if paid else log.warning)("self-check: %s", record.reason)
     images, conf = images_and_confidence(final)
     idx = np.flatnonzero(keep)
+    fixer = None if fix is None else fix.fixer
+    reference = fit(small) if fixer is not None and len(idx) else None
+    if fixer is not None and reference is not None:
+        images = fixed(fixer, images, renders(reference, small, planned), conf)
     exported = _exported(images, conf, fits.reference, d.weight, cfg)
-    return Checked([planned[i] for i in idx], images[idx], exported[idx], record)
+    return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer, reference)
+
+
+def checked_views(
+    inputs: Scene,
+    paper: list[Frame],
+    plan: PlanConfig,
+    synth: SynthFn,
+    cfg: SelfCheckConfig,
+    sources: Scene | None = None,
+) -> tuple[list[Frame], Checked, Synthesized | np.ndarray]:
+    """What ``densify --recon cfg.recon`` writes: (the planned frames, the kept views, the network's answer
+    for every planned frame). The poses are ``paper`` (the paper's plan) or, with ``cfg.plan_mode`` weak,
+    :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
+    :func:`self_check` on ``inputs``."""
+    targets = weakest_plan(at_check_size(inputs, cfg), plan, check_fit(cfg)) if cfg.plan_mode == "weak" else paper
+    final = synth(inputs if sources is None else sources, targets)
+    return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode), final
 
 
 def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:
     """The written views' confidence: the network's, lowered where the view agrees with the render of the fit
     without views (at that fit's size, then scaled up), times the synthetic-frame weight."""
     h, w = reference.shape[1:3]
-    factor = informative_confidence(_resized(images, (w, h)), None, reference, cfg)
-    factor = np.clip(_resized(factor, (images.shape[2], images.shape[1])), 0.0, 1.0)
+    factor = informative_confidence(resize_images(images, (w, h)), None, reference, cfg)
+    factor = np.clip(resize_images(factor, (images.shape[2], images.shape[1])), 0.0, 1.0)
     base = np.ones(images.shape[:3], np.float32) if conf is None else np.asarray(conf, np.float32)
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
 

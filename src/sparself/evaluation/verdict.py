@@ -11,12 +11,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sparself.evaluation.results import NETWORK, finite, mean_of, share_of_oracle_gain
+from sparself.evaluation.results import NETWORK, NETWORK_CHECKED, finite, mean_of, share_of_oracle_gain
 
 HELPS, DOES_NOT_HELP, CANNOT_TELL = "helps", "does not help", "cannot tell"
 MIN_CHANGE_DB = 0.1  # a change smaller than this is no change, whatever the spread over seeds
 # the rows of the PSNR-against-N plot: (key in a reconstructor's results, label)
-SWEEP_ROWS = (("base", "N"), (NETWORK, "N + sparself"), ("flow", "N + flow"), ("oracle", "oracle (N + real)"))
+SWEEP_ROWS = (
+    ("base", "N"),
+    (NETWORK, "N + sparself"),
+    (NETWORK_CHECKED, "N + sparself, checked"),
+    ("flow", "N + flow"),
+    ("oracle", "oracle (N + real)"),
+)
 
 
 def n_inputs(s: dict) -> int | None:
@@ -58,6 +64,7 @@ class Verdict:
     captures: int = 0
     failed: list[str] = field(default_factory=list)
     shared: int = 0  # captures whose oracle share is measurable (an oracle that gains >= 0.1 dB)
+    checked: bool = False  # judged on what densify writes (the checked row), not on every planned view
 
     def sentence(self, sweep: bool) -> str:
         who = f"{self.recon} at N = {self.n}" if sweep and self.n else self.recon
@@ -71,8 +78,9 @@ class Verdict:
         if self.share is not None:
             on = f" on the {self.shared} capture(s) with one" if self.shared < self.captures else ""
             share = f"; {100 * self.share:.0f} % of the oracle's gain ({self.oracle_gain_db:+.2f} dB){on}"
+        what = "N + sparself (checked: what densify writes)" if self.checked else "N + sparself"
         return (
-            f"{who}: {self.word}: N + sparself {self.change_db:+.2f} dB PSNR over N{spread}{share}; "
+            f"{who}: {self.word}: {what} {self.change_db:+.2f} dB PSNR over N{spread}{share}; "
             f"{self.captures} capture(s){failed}."
         )
 
@@ -83,15 +91,17 @@ def _mean(vals: list) -> float | None:
 
 
 def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
-    """The verdict on ``recon`` from the scenes (one N) that ran it."""
+    """The verdict on ``recon`` from the scenes (one N) that ran it: on the checked row (what ``densify --recon``
+    writes) where they have it, else on N + every planned view."""
     changes, spreads, shares, gains, failed = [], [], [], [], []
+    row = NETWORK_CHECKED if any("summary" in _entry(s, recon).get(NETWORK_CHECKED, {}) for s in scenes) else NETWORK
     for s in scenes:
         d = s.get("densification", {}).get(recon, {})
         if str(d.get("instrument", "ok")).startswith("failed"):
             failed.append(capture(s))
             continue
         base = mean_of(d.get("base"), "psnr")[0]
-        net, sd = mean_of(d.get(NETWORK), "psnr")
+        net, sd = mean_of(d.get(row), "psnr")
         if base is None or net is None:
             continue
         changes.append(net - base)
@@ -103,7 +113,12 @@ def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
     change, spread = _mean(changes), _mean(spreads)
     word = decide(change, spread)
     shared = sum(x is not None for x in shares)
-    return Verdict(recon, n, word, change, spread, _mean(shares), _mean(gains), len(changes), failed, shared)
+    share = _mean(shares)
+    return Verdict(recon, n, word, change, spread, share, _mean(gains), len(changes), failed, shared, row != NETWORK)
+
+
+def _entry(s: dict, recon: str) -> dict:
+    return s.get("densification", {}).get(recon, {})
 
 
 def verdicts(ok: list[dict], recons: list[str]) -> list[Verdict]:

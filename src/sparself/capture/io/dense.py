@@ -57,6 +57,29 @@ class ViewCheck:
 
 
 @dataclass(frozen=True)
+class FixerCheck:
+    """The fixer's test on the held-back input photos (``sparself.json``, in ``selfcheck``): mean PSNR of the
+    network's views, of the render of the fit without those photos, and of the fixer's merge of the two
+    (each photo fixed by a fixer trained on the other held-back photos); used: the merge beat both."""
+
+    held_back: tuple[str, ...]
+    psnr_view: float
+    psnr_render: float
+    psnr_fixed: float
+    used: bool
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "FixerCheck":
+        return cls(
+            held_back=tuple(map(str, doc["held_back"])),
+            psnr_view=float(doc["psnr_view"]),
+            psnr_render=float(doc["psnr_render"]),
+            psnr_fixed=float(doc["psnr_fixed"]),
+            used=bool(doc["used"]),
+        )
+
+
+@dataclass(frozen=True)
 class SelfCheck:
     """The densify self-check's decision and the numbers it was made on (``sparself.json``, key ``selfcheck``).
 
@@ -64,7 +87,8 @@ class SelfCheck:
     validation: the held-back input photos scored; psnr_without: their mean PSNR fitted without synthesized
     views; psnr_by_weight: (synthetic-frame weight, mean PSNR) with every planned view; psnr_kept: with the
     kept views only (None when that was not fitted); weight: the chosen synthetic-frame weight (None: no view
-    kept); views: every planned view; reason: the decision in words."""
+    kept); views: every planned view; reason: the decision in words; fixer: the fixer's test (None: not
+    tried)."""
 
     recon: str
     plan: str
@@ -75,6 +99,7 @@ class SelfCheck:
     weight: float | None
     views: tuple[ViewCheck, ...]
     reason: str
+    fixer: FixerCheck | None = None
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -99,6 +124,7 @@ class SelfCheck:
                 ViewCheck(str(v["name"]), float(v["index"]), float(v["gain"]), bool(v["kept"])) for v in doc["views"]
             ),
             reason=str(doc["reason"]),
+            fixer=FixerCheck.from_json(doc["fixer"]) if doc.get("fixer") else None,
         )
 
 

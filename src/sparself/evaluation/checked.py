@@ -1,0 +1,86 @@
+"""'N + sparself, checked': the protocol's measure of what ``densify --recon R`` writes for reconstructor R.
+
+Per network seed, the views are planned where R is weak, fixed, and kept only where they raise R's PSNR on
+held-back *input* photos (:func:`sparself.evaluation.selfcheck.checked_views`, which never reads a held-out
+photo); R is then fitted on the inputs + the kept views at their exported confidence and scored on the
+held-out photos like every other row. When the self-check keeps nothing, the capture is the N photos alone
+and the row is the N-only fit. Where the fixer was used, its views at the held-out poses are scored too
+(``sparself_fixed_views``): the fixer is meant to beat both the network's views and the N-only render.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+from typing import Callable, Literal
+
+from sparself.capture.scene import Scene
+from sparself.evaluation.fixing import fixed
+from sparself.evaluation.instruments import renders, with_images
+from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ScoredSet, SeededSets
+from sparself.evaluation.scene_eval import SceneEval
+from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
+from sparself.recon import Renderer
+from sparself.synthesis.plan import PlanConfig
+
+log = logging.getLogger(__name__)
+
+# the evaluation's reconstructor -> densify's --recon that checks views for it
+CHECKED_AS: dict[str, Literal["3dgs", "nerf", "mpi"]] = {
+    "3dgs": "3dgs",
+    "splat": "3dgs",
+    "gsplat": "3dgs",
+    "nerf": "nerf",
+    "mpi": "mpi",
+}
+
+
+def check_config(ev: SceneEval, rname: str) -> SelfCheckConfig | None:
+    """The self-check ``densify --recon`` runs for reconstructor ``rname`` (None: it has none)."""
+    recon = CHECKED_AS.get(rname)
+    if recon is None or not ev.cfg.checked or not ev.net_synths:
+        return None
+    return SelfCheckConfig(
+        recon=recon, plan_mode=ev.cfg.check_plan, check_steps=ev.cfg.check_steps, check_seed=ev.cfg.recon_seed
+    )
+
+
+def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig, label: str) -> ScoredSet | None:
+    """The seed's network views at the held-out poses through the fixer, merged with the renders there of the
+    fit the written views were merged with (None: no fixer was used)."""
+    if checked.fixer is None or checked.reference is None:
+        return None
+    side = max(max(c.width, c.height) for c in ev.full.cameras.values())
+    small = ev.full.resized(cfg.check_size) if side > cfg.check_size else ev.full  # the check's cameras
+    imgs, conf = ev.net_targets[k]
+    out = fixed(checked.fixer, imgs, renders(checked.reference, small, ev.targets), conf)
+    return ev.score(out, label, ev.scored, seed=ev.cfg.first_seed + k)
+
+
+def checked_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict, base: ScoredSet) -> None:
+    """Per seed: what densify writes for ``rname``, fitted and scored on the held-out photos, into
+    ``entry[NETWORK_CHECKED]`` (with each seed's self-check record), and the fixer's views into
+    ``entry[NETWORK_FIXED]`` where it was used."""
+    cfg = check_config(ev, rname)
+    if cfg is None:
+        return
+    plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
+    sets, views, records = SeededSets(), SeededSets(), []
+    for k, synth in enumerate(ev.net_synths):
+        seed = ev.cfg.first_seed + k
+        _, checked, _ = checked_views(ev.inputs, ev.planned, plan, synth, cfg)
+        label = f"{rname} ({NETWORK_CHECKED} seed {seed})"
+        if checked.frames:
+            sc = with_images(ev.inputs, checked.frames, checked.images, checked.confidence)
+            scored = ev.score(renders(fit(sc), ev.full, ev.targets), label, ev.scored, seed=seed, views=len(sc))
+        else:  # nothing kept: the capture is the N photos, and so is its fit
+            scored = replace(base, seed=seed)
+        sets.per_seed.append(scored)
+        assert checked.record is not None
+        records.append({**scored.to_json(), "selfcheck": checked.record.to_json()})
+        fx = _fixed_targets(ev, k, checked, cfg, f"{NETWORK_FIXED} ({rname}) seed {seed}")
+        if fx is not None:
+            views.per_seed.append(fx)
+    entry[NETWORK_CHECKED] = {**sets.to_json(), "per_seed": records}
+    if views.per_seed:
+        entry[NETWORK_FIXED] = views.to_json()

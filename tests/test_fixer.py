@@ -1,0 +1,123 @@
+"""The fixer merges a synthesized view with a reconstruction's render where each is right, learns that only
+from photos neither saw, and is used on a capture only when its merge beats both there."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from sparself.capture.io.dense import FixerCheck, SelfCheck, ViewCheck
+from sparself.core import metrics
+from sparself.evaluation.fixing import fixed, held_back_fixer, to_tensor
+from sparself.model.fixer import Fixer, blend, fix_views, train_fixer
+
+
+def _pairs(n: int = 4, h: int = 24, w: int = 32, seed: int = 0):
+    """Truth images; views right on the left half, renders right on the right half, each wrong (noisy)
+    elsewhere; the view's confidence is low where it is wrong."""
+    g = torch.Generator().manual_seed(seed)
+    truth = torch.rand(n, 3, h, w, generator=g)
+    left = torch.zeros(1, 1, h, w)
+    left[..., : w // 2] = 1.0
+    noise = lambda: (truth + 0.3 * torch.randn(n, 3, h, w, generator=g)).clamp(0, 1)  # noqa: E731
+    view = left * truth + (1 - left) * noise()
+    render = (1 - left) * truth + left * noise()
+    conf = (0.2 + 0.7 * left).expand(n, 1, h, w).clone()
+    return view, render, conf, truth
+
+
+def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float(np.mean([metrics.psnr(x.permute(1, 2, 0).numpy(), y.permute(1, 2, 0).numpy()) for x, y in zip(a, b)]))
+
+
+def test_a_trained_fixer_takes_each_pixel_from_the_image_that_is_right_there_on_unseen_images():
+    view, render, conf, truth = _pairs(seed=0)
+    fixer = train_fixer(view, render, conf, truth, steps=300, seed=0)
+    v2, r2, c2, t2 = _pairs(seed=1)  # other images, the same kind of errors
+    with torch.no_grad():
+        out = blend(fixer, v2, r2, c2)
+    assert _psnr(out, t2) > max(_psnr(v2, t2), _psnr(r2, t2)) + 3.0
+
+
+def test_fixing_at_the_renders_size_is_the_blend_and_a_larger_view_is_corrected_in_its_low_frequencies():
+    g = torch.Generator().manual_seed(0)
+    smooth = lambda: F.interpolate(torch.rand(2, 3, 6, 8, generator=g), size=(24, 32), mode="bilinear")  # noqa: E731
+    view, render, conf = smooth(), smooth(), smooth()[:, :1]
+    fixer = Fixer()
+    with torch.no_grad():
+        torch.testing.assert_close(fix_views(fixer, view, render, conf), blend(fixer, view, render, conf).clamp(0, 1))
+        big = F.interpolate(view, scale_factor=2, mode="nearest")
+        out = fix_views(fixer, big, render, F.interpolate(conf, scale_factor=2, mode="nearest"))
+    assert out.shape == big.shape
+    # area-averaged back to the render's size it is the blend there (the correction is low-frequency only)
+    small = F.interpolate(out, size=render.shape[-2:], mode="area")
+    expect = blend(fixer, view, render, conf).detach()
+    assert float((small - expect).abs().mean()) < 0.02
+
+
+def test_the_same_seed_gives_the_same_fixer():
+    view, render, conf, truth = _pairs()
+    a, b = (train_fixer(view, render, conf, truth, steps=20, seed=3) for _ in range(2))
+    for p, q in zip(a.parameters(), b.parameters()):
+        assert torch.equal(p, q)
+
+
+class _Render:
+    """A renderer that returns fixed images per pose centre x (a fake fit)."""
+
+    def __init__(self, scene, wrong_right: bool):
+        self.scene, self.wrong_right = scene, wrong_right
+
+    def render(self, pose, cam):
+        from planescene import render_plane
+
+        img = render_plane(pose, cam)
+        if self.wrong_right:  # the right half is wrong: a floater
+            img = img.copy()
+            img[:, img.shape[1] // 2 :] = 0.5
+        return img
+
+
+def test_on_a_capture_the_fixer_is_trained_on_held_back_inputs_and_used_when_it_beats_both():
+    from planescene import plane_scene, render_plane
+    from sparself.synthesis.synthesize import Synthesized
+
+    scene = plane_scene(xs=tuple(0.1 * i for i in range(12)))
+    seen: list[list[str]] = []
+
+    def synth(sc, targets):  # right on the right half only, unsure on the left
+        seen.append([f.name for f in sc.frames])
+        imgs = np.stack([render_plane(t.pose, sc.cameras[t.camera_id]) for t in targets])
+        imgs[:, :, : imgs.shape[2] // 2] = 0.2
+        conf = np.ones(imgs.shape[:3], np.float32)
+        conf[:, :, : imgs.shape[2] // 2] = 0.1
+        return Synthesized(imgs, conf)
+
+    fit = held_back_fixer(scene, scene, _Render(scene, True), synth, steps=200, seed=0)
+    held = {scene.frames[i].name for i in (2, 7)}
+    assert fit.record.held_back == tuple(sorted(held, key=[f.name for f in scene.frames].index))
+    assert not held & set(seen[0])  # the views of the held-back photos were made without them
+    assert fit.record.used and fit.fixer is not None
+    assert fit.record.psnr_fixed > max(fit.record.psnr_view, fit.record.psnr_render)
+    # a render that is right everywhere is not beaten: the fixer is not used
+    plain = held_back_fixer(scene, scene, _Render(scene, False), synth, steps=200, seed=0)
+    assert not plain.record.used and plain.fixer is None
+
+
+def test_fixed_views_are_numpy_images_at_the_views_size():
+    view, render, conf, _ = _pairs(n=2)
+    to_np = lambda t: t.permute(0, 2, 3, 1).numpy()  # noqa: E731
+    out = fixed(Fixer(), to_np(view), to_np(render), conf[:, 0].numpy())
+    assert out.shape == to_np(view).shape and out.dtype == np.float32
+    assert to_tensor(out).shape == view.shape
+
+
+def test_the_fixers_record_round_trips_through_sparself_json():
+    fx = FixerCheck(("a", "b"), 24.0, 26.5, 27.1, True)
+    rec = SelfCheck(
+        "3dgs", "weak", ("a", "b"), 20.5, ((1.0, 21.0),), None, 1.0, (ViewCheck("n", 1.5, 0.3, True),), "r", fx
+    )
+    assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
