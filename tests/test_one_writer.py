@@ -80,9 +80,10 @@ def test_a_second_writer_into_the_same_out_is_refused(tmp_path, capsys, cmd):
     finally:
         proc.kill()
         proc.wait()
-    assert not out.exists()
+    assert not out.exists() and lock_path(out).is_file()  # SIGKILL: the file stays, its lock went with the holder
     code, _, err = run(capsys, cmd, tmp_path / "missing", "--out", out)  # the holder has gone: the usual check
     one_error(code, err, cmd, "missing")
+    assert "lock" not in err and "another sparself command" not in err  # taken over without a word
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a"]  # a killed holder's lock file is taken over and removed
 
 

@@ -176,8 +176,8 @@ def add_poses(sub) -> None:
         "--matcher",
         choices=["exhaustive", "sequential"],
         default="exhaustive",
-        help="exhaustive: all pairs (default; best for ~25 views); sequential: neighbours by file "
-        "name (long video-like captures)",
+        help="exhaustive: all pairs (default; best for ~25 views); sequential: each photo with its next "
+        "ones in capture order, IMG_2 before IMG_10 (long video-like captures)",
     )
     p.add_argument(
         "--max-image-size",

@@ -82,7 +82,13 @@ def add_synthesize(sub) -> None:
     p.add_argument("run", type=Path, help="run folder written by `sparself train`")
     p.add_argument("--plan", type=Path, required=True, help="plan JSON written by `sparself plan`")
     p.add_argument("--out", type=Path, required=True, help="folder for the densified scene")
-    p.add_argument("--scene", type=Path, default=None, help="source scene (default: the one the run used)")
+    p.add_argument(
+        "--scene",
+        type=Path,
+        default=None,
+        help="source scene (default: the one the run used, else the dense scene densify wrote beside the run); "
+        "a dense scene sparself wrote gives its photos under their own names, never its synthesized views",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     export_options(p)
     add_common_options(p)

@@ -17,21 +17,16 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Iterator, Literal, Sequence
 
 import numpy as np
 
-from sparself.capture.images import (
-    image_size_of,
-    list_images,
-    load_image,
-    needs_conversion,
-    save_image,
-)
+from sparself.capture.images import image_size_of, list_images
 from sparself.capture.io.colmap import scene_from_reconstruction
 from sparself.capture.photos import exif_focal_px, validate_images
 from sparself.capture.posecheck import ImageStats, PoseCheck, Suspect, camera_warnings, check_poses
 from sparself.capture.scene import Scene
+from sparself.capture.sfm_images import WorkImages, work_images
 from sparself.core.errors import InputError, RegistrationError
 from sparself.core.interrupts import import_native
 from sparself.core.names import capture_key
@@ -46,14 +41,15 @@ class SfmConfig:
     """Options of :func:`recover_poses`.
 
     matcher: "exhaustive" (all pairs; best for ~25 unordered or orbit views) or "sequential" (each image
-             with its ``sequential_overlap`` successors by name; for long video-like captures).
+             with its ``sequential_overlap`` successors in capture order, IMG_2 before IMG_10; for long
+             video-like captures).
     max_image_size: longest side (px) the images are downscaled to for feature extraction; 0 = full size.
              Cameras and keypoints are still expressed at full resolution.
     single_camera: one shared camera for all images (a single phone/lens) or one per image.
     camera_model: COLMAP model of the recovered camera(s).
     """
 
-    matcher: str = "exhaustive"
+    matcher: Literal["exhaustive", "sequential"] = "exhaustive"
     max_image_size: int = 1600  # phone photos (4000 px) extract ~6x faster; bird keeps 25/25 even at 480
     single_camera: bool = True
     camera_model: str = "SIMPLE_RADIAL"
@@ -115,32 +111,6 @@ class SfmReport:
         return s
 
 
-# ---- input validation ----------------------------------------------------------------------------
-
-
-def _colmap_inputs(paths: Sequence[Path], work: Path) -> Path:
-    """The folder COLMAP should read. COLMAP ignores EXIF orientation and reads grayscale, 16-bit, RGBA or
-    CMYK files its own way, while sparself's image loading turns every photo into upright RGB; so such
-    photos reach COLMAP as upright RGB copies (same names, made by the same loader), and the recovered
-    cameras match the images as every other stage sees them."""
-    odd = [p for p in paths if needs_conversion(p)]
-    if not odd:
-        return paths[0].parent
-    log.info(
-        "sfm: %d photo(s) need conversion (%s); COLMAP reads upright RGB copies",
-        len(odd),
-        ", ".join(p.name for p in odd[:5]),
-    )
-    d = work / "upright"
-    d.mkdir()
-    for p in paths:
-        if p in odd:
-            save_image(d / p.name, load_image(p, warn=False))
-        else:
-            (d / p.name).symlink_to(p.resolve())
-    return d
-
-
 # ---- pycolmap --------------------------------------------------------------------------------------
 
 
@@ -196,27 +166,27 @@ def _options(cfg: SfmConfig):
 
 
 def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict[str, float]):
-    """Features, matching and incremental mapping in ``work``. -> (reconstructions, database, image folder)."""
+    """Features, matching and incremental mapping in ``work``, on the photos under aliases in capture order
+    (:mod:`sparself.capture.sfm_images`). -> (reconstructions with the user's names, database, the photos)."""
     pycolmap = import_native("pycolmap")
 
-    names = [p.name for p in paths]
     ext, match, verify, _ = _options(cfg)
     pycolmap.set_random_seed(cfg.seed)
     db = work / "database.db"
-    colmap_images = _colmap_inputs(paths, work)
+    images = work_images(paths, work)
     t0 = time.perf_counter()
     longest = max(max(image_size_of(p)) for p in paths)
     log.info(
         "sfm: extracting SIFT features from %d images%s",
-        len(names),
+        len(paths),
         f" (downscaled from {longest} to {cfg.max_image_size} px)" if 0 < cfg.max_image_size < longest else "",
     )
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     pycolmap.extract_features(
         db,
-        colmap_images,
-        image_names=names,
+        images.folder,
+        image_names=list(images.aliases),
         camera_mode=pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE,
         reader_options=reader,
         extraction_options=ext,
@@ -228,7 +198,7 @@ def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict
     log.info("sfm: %s matching", cfg.matcher)
     if cfg.matcher == "exhaustive":
         pycolmap.match_exhaustive(db, matching_options=match, verification_options=verify, device=pycolmap.Device.cpu)
-    else:
+    else:  # pairs each image with its successors in name order: the aliases' order, capture order
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = cfg.sequential_overlap
         pycolmap.match_sequential(
@@ -238,18 +208,20 @@ def _colmap_run(paths: Sequence[Path], work: Path, cfg: SfmConfig, timings: dict
 
     t0 = time.perf_counter()
     log.info("sfm: incremental mapping")
-    recs = _mapping(db, colmap_images, work / "sparse", cfg, reseed=False)
+    recs = _mapping(db, images, work / "sparse", cfg, reseed=False)
     timings["mapping"] = time.perf_counter() - t0
-    return recs, db, colmap_images
+    return recs, db, images
 
 
-def _mapping(db: Path, images: Path, out: Path, cfg: SfmConfig, reseed: bool = True) -> dict:
+def _mapping(db: Path, images: WorkImages, out: Path, cfg: SfmConfig, reseed: bool = True) -> dict:
+    """Incremental mapping; its reconstructions name the photos as the user does."""
     pycolmap = import_native("pycolmap")
 
     out.mkdir()
     if reseed:  # a repair run starts from the same random state as the first mapping would from scratch
         pycolmap.set_random_seed(cfg.seed)
-    return pycolmap.incremental_mapping(db, images, out, _options(cfg)[3])
+    recs = pycolmap.incremental_mapping(db, images.folder, out, _options(cfg)[3])
+    return {k: images.to_user_names(r) for k, r in recs.items()}
 
 
 def _best(recs: dict):
@@ -289,7 +261,7 @@ def recover_poses(
         cfg = replace(cfg, num_threads=1)
     timings: dict[str, float] = {}
     with scratch_dir(beside, "sfm") as work, _quiet_colmap(cfg.debug):
-        recs, db, colmap_images = _colmap_run(paths, work, cfg, timings)
+        recs, db, images = _colmap_run(paths, work, cfg, timings)
         best = _best(recs)
         if best is None:
             raise RegistrationError(
@@ -300,7 +272,7 @@ def recover_poses(
         check = check_poses(_posed(best), image_stats(best))
         repair = ""
         if check.suspects:
-            best, check, repair = _repair(best, check, db, colmap_images, work, cfg, names)
+            best, check, repair = _repair(best, check, db, images, work, cfg, names)
         timings["check"] = time.perf_counter() - t0
     scene = scene_from_reconstruction(best, folder, source=folder)
     return scene, _report(scene, names, recs, best, check, repair, timings, paths)
@@ -381,15 +353,15 @@ def image_stats(rec) -> list[ImageStats]:
     return out
 
 
-def _restricted_db(db: Path, dst: Path, keep) -> int:
-    """A copy of the database without the verified pairs that ``keep(a, b)`` (image names) refuses.
-    -> number of pairs removed."""
+def _restricted_db(db: Path, dst: Path, keep, user: dict[str, str]) -> int:
+    """A copy of the database without the verified pairs that ``keep(a, b)`` (the user's image names; ``user``
+    maps the database's aliases to them) refuses. -> number of pairs removed."""
     pycolmap = import_native("pycolmap")
 
     shutil.copyfile(db, dst)
     d = pycolmap.Database.open(dst)
     try:
-        names = {im.image_id: im.name for im in d.read_all_images()}
+        names = {im.image_id: user[im.name] for im in d.read_all_images()}
         removed = 0
         for pid in d.read_two_view_geometries()[0]:
             a, b = pycolmap.pair_id_to_image_pair(pid)
@@ -405,7 +377,7 @@ def _restricted_db(db: Path, dst: Path, keep) -> int:
 REPAIR_WINDOW = 3  # capture-order neighbours (either side) a photo keeps its matches with in a repair
 
 
-def _repair(best, check: PoseCheck, db: Path, images: Path, work: Path, cfg: SfmConfig, names: list[str]):
+def _repair(best, check: PoseCheck, db: Path, images: WorkImages, work: Path, cfg: SfmConfig, names: list[str]):
     """Try to re-register suspect photos: (1) the suspects' matches restricted to their capture-order
     neighbours (wrong matches to far photos of a symmetric object or repetitive floor pull them to mirrored
     poses), (2) every photo's matches restricted so (a sequential order prior). Each is a new incremental
@@ -423,7 +395,7 @@ def _repair(best, check: PoseCheck, db: Path, images: Path, work: Path, cfg: Sfm
     ]
     before, done = check.names, []
     for k, (what, keep) in enumerate(tries):
-        removed = _restricted_db(db, work / f"repair{k}.db", keep)
+        removed = _restricted_db(db, work / f"repair{k}.db", keep, images.user)
         cand = _best(_mapping(work / f"repair{k}.db", images, work / f"repair{k}", cfg))
         c = check_poses(_posed(cand), image_stats(cand)) if cand is not None else None
         done.append(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,33 @@ def source_record(scene: Scene) -> dict:
         "source_center": [float(v) for v in scene.centers().mean(0)],
         "source_scale": float(scene.scale()),
     }
+
+
+@dataclass(frozen=True)
+class PlanSource:
+    """What a plan file says of the scene it was made on, read without checking the file (:func:`load_plan`
+    checks it): its views' names, their number and the order the plan followed, each None when not recorded."""
+
+    names: tuple[str, ...] | None = None
+    n_views: int | None = None
+    order: str | None = None
+
+
+def plan_source(path: Path) -> PlanSource:
+    """The :class:`PlanSource` of a plan file; empty when the file cannot be read (:func:`load_plan` says why)."""
+    try:
+        doc = json.loads(Path(path).read_text(), parse_constant=reject_constant)
+    except (OSError, ValueError):
+        return PlanSource()
+    if not isinstance(doc, dict):
+        return PlanSource()
+    names, n, cfg = doc.get("source_frames"), doc.get("n_source_views"), doc.get("config")
+    order = cfg.get("order") if isinstance(cfg, dict) else None
+    return PlanSource(
+        tuple(map(str, names)) if isinstance(names, list) else None,
+        n if isinstance(n, int) else None,
+        order if isinstance(order, str) else None,
+    )
 
 
 def check_plan_source(path: Path, doc: dict, scene: Scene) -> None:

@@ -9,17 +9,22 @@ network's pose normalisation and its learned views do not apply to it.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from sparself.capture.io import detect_format
+from sparself.capture.io.dense_photos import dense_scene_of_run
 from sparself.capture.scene import Scene
 from sparself.core.errors import ConfigError, InputError
 from sparself.core.geometry import inverse_depth_planes
 from sparself.model import CNNLSTM, PoseNorm, build_decoder
 from sparself.synthesis.train_config import TrainConfig, resolve_device
+
+log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -154,13 +159,29 @@ def run_scene_mismatch(meta: "RunMeta", scene: Scene, holdout: tuple[int, ...] =
 
 
 def recorded_scene(meta: "RunMeta", run_path: Path) -> Path:
-    """The scene a run was trained on, as recorded; InputError saying "pass --scene" when it is gone."""
-    if not meta.scene:
+    """The scene a run was trained on, as recorded, while it holds poses; else the dense scene ``densify`` wrote
+    beside the run (a run trained on photos posed by SfM: only the dense scene holds their poses); InputError
+    saying "pass --scene" when neither is there."""
+    p = Path(meta.scene) if meta.scene else None
+    if p is not None and p.exists() and _is_scene(p):
+        return p
+    beside = dense_scene_of_run(run_path)
+    if beside is not None:
+        log.info("%s: synthesizing from the dense scene beside the run, %s", run_path, beside)
+        return beside
+    if p is None:
         raise InputError(f"{run_path}: the run does not record its scene; pass --scene")
-    p = Path(meta.scene)
     if not p.exists():
         raise InputError(
             f"{run_path}: the run's scene {p} is not there any more (moved or deleted?); "
             "pass --scene with its new location"
         )
-    return p
+    return p  # reading it says what is wrong with it
+
+
+def _is_scene(path: Path) -> bool:
+    try:
+        detect_format(path)
+    except InputError:
+        return False
+    return True

@@ -7,7 +7,6 @@ through :func:`sparself.model.query.render`, the same call training uses.
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -18,14 +17,15 @@ import torch
 
 from sparself.capture import io as sio
 from sparself.capture.io.dense import MadeFrom
+from sparself.capture.io.dense_photos import DensePhotos
 from sparself.capture.scene import Frame, Scene, one_size
 from sparself.capture.triangulate import ensure_points
 from sparself.core.errors import InputError
 from sparself.core.names import check_names
 from sparself.core.outputs import Input, check_not_input, check_output_dir, scene_folder, scene_inputs
 from sparself.model.query import Sources, flow_aligned, novel_queries, render_with_confidence
-from sparself.synthesis.ordering import plan_order, reindexed
-from sparself.synthesis.plan_files import load_plan
+from sparself.synthesis.ordering import indices_along, plan_order, reindexed
+from sparself.synthesis.plan_files import load_plan, novel_name, plan_source
 from sparself.synthesis.run import Run, load_run, recorded_scene, run_scene_mismatch
 from sparself.synthesis.train_config import amp_dtype, autocast
 
@@ -148,23 +148,30 @@ def synthesize_plan(
     triangulate: bool = True,
 ) -> Scene:
     """`sparself synthesize`: the run's scene (minus its holdout) + the plan's poses -> written dense scene.
+    A dense scene sparself wrote (``densify``'s ``OUT/scene``) is read as the capture it was made from (its
+    photos, named and indexed as the run knew them: :mod:`sparself.capture.io.dense_photos`), and a plan made
+    on it is mapped to the capture's index scale.
     downscaled: also write the ``images_2/4/8`` copies; triangulate: a scene without sparse points gets
     points triangulated from its real photos (:func:`sparself.capture.triangulate.ensure_points`)."""
     _check_order(Path(run_path), Path(plan))
     inputs = [Input("run folder", run_path), Input("plan file", plan), Input("scene", scene_path)]
     check_not_input(Path(out), inputs)
     run = load_run(run_path)
-    src = Path(scene_path) if scene_path else recorded_scene(run.meta, Path(run_path))
+    src = Path(scene_path) if scene_path else recorded_scene(run.meta, run.path or Path(run_path))
     check_not_input(Path(out), [Input("run's scene", scene_folder(src))])
     scene = sio.read_scene(src)
     check_output_dir(Path(out), overwrite, scene_inputs(scene, "run's scene"))  # before any synthesis
-    why = run_scene_mismatch(run.meta, scene, run.cfg.holdout)
+    photos = sio.read_dense_photos(scene, src)
+    holdout = run.cfg.holdout
+    if photos is not None:  # its synthesized views are never sources; its photos get their own names back
+        scene, holdout = photos.scene, tuple(photos.held_out(run.cfg.holdout, len(run.meta.sources)))
+        log.info("%s: a dense scene: synthesizing from its %d photos", src, len(scene))
+    why = run_scene_mismatch(run.meta, scene, holdout)
     if why:
         raise InputError(f"{scene.source}: not the scene the run {run_path} was trained on ({run.meta.scene}): {why}")
-    targets = load_plan(Path(plan), scene)  # validates the file, and that it was made for this scene
-    scene = scene.without(run.cfg.holdout)
+    targets, order = _planned(Path(plan), scene, photos)  # validated, and made for this scene
+    scene = scene.without(holdout)
     check_names([t.name for t in targets], plan, what="frame name", taken=[f.name for f in scene.frames])
-    order = (json.loads(Path(plan).read_text()).get("config") or {}).get("order")
     if order:  # put the sources on the plan's index scale (it may follow a nearest-neighbour path)
         scene = reindexed(scene, plan_order(scene, order))
     syn = synthesize_with_confidence(run, scene, targets)
@@ -172,3 +179,24 @@ def synthesize_plan(
     dense = densify_scene(written, targets, syn.images, syn.confidence)
     info = sio.DenseInfo(str(run_path), str(plan), downscale=downscaled, made_from=syn.sources_by_name(targets))
     return sio.write_scene(dense, Path(out), overwrite=overwrite, dense=info)
+
+
+def _planned(plan: Path, scene: Scene, photos: DensePhotos | None) -> tuple[list[Frame], str | None]:
+    """The plan's frames on ``scene``'s index scale, and the order its sources follow (None: as they are).
+    A plan made on a dense scene (``sparself plan OUT/scene``) counts its synthesized frames too: its
+    indices are mapped to the run's through the recorded indices of the written frames."""
+    made_on = plan_source(plan)
+    if photos is None or not photos.made_for_dense(made_on.names, made_on.n_views):
+        return load_plan(plan, scene), made_on.order
+    targets = load_plan(plan, photos.dense)
+    seq = plan_order(photos.dense, made_on.order or "capture")
+    if not np.array_equal(indices_along(photos.dense, seq), [photos.dense.frames[i].index for i in seq]):
+        raise InputError(
+            f"{plan}: made on the dense scene {photos.record.parent} along a nearest-neighbour path, whose "
+            "indices do not map to the capture's; make it with --order capture"
+        )
+    mapped = []
+    for t in targets:
+        k = photos.capture_index(t.index)
+        mapped.append(replace(t, index=k, name=novel_name(k) if t.name == novel_name(t.index) else t.name))
+    return mapped, None

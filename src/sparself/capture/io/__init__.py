@@ -28,6 +28,7 @@ from sparself.capture.images import image_size_of, needs_conversion, save_image
 from sparself.capture.io import dense as _dense
 from sparself.capture.io.colmap import find_model_dir, read_colmap, write_colmap
 from sparself.capture.io.dense import DenseInfo
+from sparself.capture.io.dense_photos import DensePhotos, dense_photos
 from sparself.capture.io.llff import read_llff, write_llff
 from sparself.capture.io.middlebury import find_par_file, read_middlebury, write_middlebury
 from sparself.capture.io.nerfstudio import read_nerfstudio, write_nerfstudio
@@ -38,6 +39,8 @@ from sparself.core.outputs import atomic_dir, scene_inputs, write_marker
 
 __all__ = [
     "DenseInfo",
+    "DensePhotos",
+    "read_dense_photos",
     "read_scene",
     "write_scene",
     "write_scene_into",
@@ -114,6 +117,12 @@ def read_scene(path: Path, images: Path | None = None) -> Scene:
         return read_middlebury(path)
     synthetic = _dense.read_synthetic_names(_scene_folder(path))
     return _dense.mark_synthetic(scene, synthetic) if synthetic else scene
+
+
+def read_dense_photos(scene: Scene, path: Path) -> DensePhotos | None:
+    """The photos of ``scene``, read from ``path``, as the capture they came from when it is a dense scene
+    sparself wrote (:func:`sparself.capture.io.dense_photos.dense_photos`); None otherwise."""
+    return dense_photos(scene, _scene_folder(Path(path)))
 
 
 def _scene_folder(path: Path) -> Path:
