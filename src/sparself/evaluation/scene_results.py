@@ -1,8 +1,8 @@
 """Typed records of one evaluated run (a capture at one N): :class:`SceneResult` (what ran: the split, the
 view synthesis scores per method, the densification per reconstructor) and :class:`SceneFailure` (a run
 that failed, with its error). ``results.json`` holds their :meth:`to_json` form; :meth:`from_json` reads
-it back, older files included (keys they lack get their defaults; keys this version does not know are
-kept in ``extra`` and written back as read)."""
+it back, older files included (keys they lack get their defaults; a scene's keys this version does not
+know, such as a benchmark's ``wall_s``, are kept in ``extra`` and written back as read)."""
 
 from __future__ import annotations
 
