@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         out = args.out / name
         res = evaluate(paths, out, c, overwrite=True)
-        bad = [s["name"] for s in res["scenes"] if s.get("status") != "ok"]
+        bad = [s.name for s in res.failed]
         print(
             f"{name}: {len(paths)} scene(s) in {time.perf_counter() - t0:.0f} s -> {out / 'report.md'}"
             + (f" (failed: {', '.join(bad)})" if bad else "")

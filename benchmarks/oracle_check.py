@@ -49,7 +49,7 @@ def densify_check(scene, rname: str, kw: dict, size: int, synth: str) -> dict:
     place (cheap, no training): {"N", "N+synth", "oracle", "instrument", "share"} for one reconstructor."""
     from sparself.evaluation.config import EvalConfig
     from sparself.evaluation.protocol import evaluate_scene
-    from sparself.evaluation.results import NETWORK
+    from sparself.evaluation.results import BASE, NETWORK, ORACLE
     from sparself.synthesis.baselines import BASELINES
 
     fn = BASELINES[synth]
@@ -63,16 +63,16 @@ def densify_check(scene, rname: str, kw: dict, size: int, synth: str) -> dict:
         baselines={},
         reconstructors={rname: lambda sc: fit(sc, **kw)},
     )
-    d = res["densification"][rname]
-    if d.get("status") != "ok":
-        raise RuntimeError(d.get("error"))
-    m = lambda k: d[k]["summary"]["psnr"]["mean"] if k in d else float("nan")  # noqa: E731 (no oracle: sparse)
+    d = res.densification[rname]
+    if d.status != "ok":
+        raise RuntimeError(d.error)
+    m = lambda k: d.rows[k].raw_mean("psnr") if k in d.rows else float("nan")  # noqa: E731 (no oracle: sparse)
     return {
-        "N": m("base"),
+        "N": m(BASE),
         "N+synth": m(NETWORK),
-        "oracle": m("oracle"),
-        "instrument": d.get("instrument"),
-        "share": d.get("oracle_share"),
+        "oracle": m(ORACLE),
+        "instrument": d.instrument,
+        "share": d.shares.get(NETWORK),
     }
 
 

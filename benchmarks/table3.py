@@ -49,6 +49,7 @@ def run(args) -> int:
     from sparself.evaluation.config import EvalConfig
     from sparself.evaluation.instruments import reconstructor, versions
     from sparself.evaluation.protocol import evaluate_scene
+    from sparself.evaluation.scene_results import SceneResult
 
     recons = tuple(args.recon.split(","))
     cfg = EvalConfig(
@@ -79,12 +80,12 @@ def run(args) -> int:
         "lpips_status": "unavailable: disabled by settings",
     }
 
-    def save(res: dict) -> None:
-        res = {**res, "wall_s": time.time() - t0}
+    def save(scene: SceneResult) -> None:
+        res = {**scene.to_json(), "wall_s": time.time() - t0}
         tmp = out / "results.json.tmp"
         tmp.write_text(json.dumps({"settings": settings, "not_run": {}, "scenes": [res]}, indent=1, default=_num))
         tmp.replace(out / "results.json")
-        logging.warning("%s seed %d: saved after %.0f s", res.get("name"), args.seed, time.time() - t0)
+        logging.warning("%s seed %d: saved after %.0f s", scene.name, args.seed, time.time() - t0)
 
     res = evaluate_scene(read_scene(Path(args.scene)), cfg, None, reconstructors=fits, on_partial=save)
     save(res)
@@ -104,18 +105,19 @@ def _num(x):
 def merge(args) -> int:
     from sparself.batch import merge_seeds
     from sparself.evaluation.report import write_report
+    from sparself.evaluation.results_file import Results, Settings, read_results
 
-    runs = [json.loads((Path(d) / "results.json").read_text()) for d in args.runs]
+    runs = [read_results(Path(d) / "results.json") for d in args.runs]
     by_scene: dict[str, list] = {}
     for d, data in zip(args.runs, runs):
-        s = data["scenes"][0]
-        by_scene.setdefault(s["name"], []).append((data["settings"]["first_seed"], s, Path(d)))
+        s = data.scenes[0]
+        by_scene.setdefault(s.name, []).append((data.settings.option("first_seed"), s, Path(d)))
     scenes = [merge_seeds(parts) for parts in by_scene.values()]
-    settings = dict(runs[0]["settings"], seeds=len({p[0] for ps in by_scene.values() for p in ps}))
-    results = {"settings": settings, "not_run": {}, "scenes": scenes}
+    seeds = len({p[0] for ps in by_scene.values() for p in ps})
+    results = Results(Settings({**runs[0].settings.recorded, "seeds": seeds}), {}, list(scenes))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(results, indent=1, allow_nan=True))
+    (out / "results.json").write_text(json.dumps(results.to_json(), indent=1, allow_nan=True))
     write_report(results, out)
     print(out / "report.md")
     return 0

@@ -11,13 +11,15 @@ import numpy as np
 
 from planescene import F, H, W, render_plane
 from sparself.capture.images import resize_image, save_image
+from sparself.capture.io.dense import SelfCheck
 from sparself.capture.scene import Camera, Frame, Scene
 from sparself.core.geometry import Pose
 from sparself.evaluation import evaluate as ev
 from sparself.evaluation import protocol, scene_eval
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.instruments import network_factory
-from sparself.evaluation.results import NETWORK_WEIGHTED
+from sparself.evaluation.results import NETWORK_WEIGHTED, ScoredSet, SeededSets
+from sparself.evaluation.scene_results import SceneFailure, SceneResult
 from sparself.evaluation.split import evenly_spaced, gap_truth, holdout_indices, make_split
 
 # ---- split rules ----------------------------------------------------------------------------------
@@ -146,34 +148,39 @@ def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):
     hooks, calls = _hooks()
     out = tmp_path / "out"
     res = ev.evaluate([scene], out, cfg, **hooks)
-    s = res["scenes"][0]
-    assert s["status"] == "ok", s.get("error")
+    s = res.scenes[0]
+    assert isinstance(s, SceneResult) and s.status == "ok", s
     assert set(read) == {scene.frames[i].name for i in split.eval}  # and scored
     assert calls == [0, 1]
     for r in ("nearest", "nerf"):
-        d = s["densification"][r]
-        assert d["status"] == "ok", d.get("error")
-        assert d["base"]["views"] == 5 and d["sparself"]["views"] == 8 and d["oracle"]["views"] == 8
-        assert len(d["base"]["frames"]) == len(split.eval)
+        d = s.densification[r]
+        assert d.status == "ok", d.error
+        base, net, oracle = d.rows["base"], d.rows["sparself"], d.rows["oracle"]
+        assert isinstance(base, ScoredSet) and isinstance(net, SeededSets) and isinstance(oracle, ScoredSet)
+        assert base.views == 5 and net.views == 8 and oracle.views == 8
+        assert len(base.frames) == len(split.eval)
     # what densify writes for the NeRF, checked on held-back *inputs* only (the held-out photos are in the vault)
-    checked = s["densification"]["nerf"]["sparself_checked"]
-    assert checked["summary"]["psnr"]["n_seeds"] == 2 and len(checked["per_seed"]) == 2
+    checked = s.densification["nerf"].rows["sparself_checked"]
+    assert isinstance(checked, SeededSets) and len(checked.per_seed) == 2
     inputs = {scene.frames[i].name for i in split.inputs}
-    for p in checked["per_seed"]:
-        assert set(p["selfcheck"]["validation"]) <= inputs and p["selfcheck"]["recon"] == "nerf"
-    assert "sparself_checked" not in s["densification"]["nearest"]  # no densify --recon for it
+    for p in checked.per_seed:
+        assert isinstance(p.decision, SelfCheck)
+        assert set(p.decision.validation) <= inputs and p.decision.recon == "nerf"
+    assert "sparself_checked" not in s.densification["nearest"].rows  # no densify --recon for it
     # seed-dependent synthesizer: 2 seeds give a real spread
-    assert s["view_synthesis"]["sparself"]["summary"]["psnr"]["n_seeds"] == 2
-    assert s["view_synthesis"]["sparself"]["summary"]["psnr"]["std"] > 0
+    net_vs = s.synthesis.held_out["sparself"]
+    assert isinstance(net_vs, SeededSets) and len(net_vs.per_seed) == 2
+    assert (net_vs.mean("psnr")[1] or 0) > 0
     # planned truth: snapped to real non-held-out frames strictly between inputs (2 midpoints) or beyond the
     # last one (1 extrapolation)
-    truths = [p["truth"] for p in s["protocol"]["planned"] if p["truth"] is not None]
+    truths = [p.truth for p in s.split.planned if p.truth is not None]
     assert len(truths) == 3 and not set(truths) & set(split.eval) and not set(truths) & set(split.inputs)
     assert sum(t > split.inputs[-1] for t in truths) == 1
     # blend at held-out poses beats nothing-better-than-nearest? both are scored, with finite PSNR
-    assert np.isfinite(s["view_synthesis"]["blend"]["summary"]["psnr"]["mean"])
-    # outputs: JSON with settings + versions, report with the tables and figures
+    assert s.synthesis.held_out["blend"].mean("psnr")[0] is not None
+    # outputs: JSON with settings + versions (the results' own JSON), report with the tables and figures
     data = json.loads((out / "results.json").read_text())
+    assert data == json.loads(json.dumps(res.to_json()))
     assert data["settings"]["inputs"] == [5] and "torch" in data["settings"]["versions"]
     md = (out / "report.md").read_text()
     assert "Densification: N input views vs N + synthesized views" in md
@@ -193,9 +200,9 @@ def test_a_failing_scene_is_reported_and_the_others_go_on(tmp_path):
     hooks["reconstructors"] = {"nearest": _NearestRenderer}
     out = tmp_path / "out"
     res = ev.evaluate([broken, tmp_path / "no_such_scene", good], out, _tiny_cfg(seeds=1), **hooks)
-    status = [s["status"] for s in res["scenes"]]
+    status = [s.status for s in res.scenes]
     assert status == ["failed", "failed", "ok"]
-    assert first_input.name in res["scenes"][0]["error"]
+    assert isinstance(res.scenes[0], SceneFailure) and first_input.name in res.scenes[0].error
     md = (out / "report.md").read_text()
     assert "Scenes that failed" in md and "no_such_scene" in md
 
@@ -239,7 +246,7 @@ def test_cli_evaluate_end_to_end_with_the_real_network(tmp_path, capsys):
     )
     assert rc == 0, capsys.readouterr().err
     data = json.loads((out / "results.json").read_text())
-    s = data["scenes"][0]
+    s = data["scenes"][0]  # the file as written
     assert s["status"] == "ok" and s["name"] == "cap"
     assert "sparself" in s["view_synthesis"] and s["densification"]["mpi"]["status"] == "ok"
     # the weighted row's weight choice: the real network synthesizes again from the 4 inputs not held back
@@ -273,9 +280,9 @@ def test_partial_results_are_handed_out_after_each_step(tmp_path):
     seen = []
 
     def on_partial(res):  # a copy of what is finished at each call
-        seen.append((sorted(res["view_synthesis"]), sorted(res.get("densification", {}))))
+        seen.append((sorted(res.synthesis.held_out), sorted(res.densification)))
 
     final = protocol.evaluate_scene(scene, _tiny_cfg(seeds=1), None, on_partial=on_partial, **hooks)
     assert [s[1] for s in seen] == [[], [], ["nearest"], ["nearest", "nearest2"]]
     assert seen[0][0] == ["sparself"] and seen[1][0] == ["blend", "nearest", "sparself"]
-    assert final["densification"]["nearest2"]["status"] == "ok"
+    assert final.densification["nearest2"].status == "ok"

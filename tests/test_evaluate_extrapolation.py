@@ -149,7 +149,7 @@ def _psnr(entry, group=None):
 
 def test_known_per_frame_scores_give_hand_checked_group_summaries(tmp_path):
     seen = []
-    res = protocol.evaluate_scene(_capture(tmp_path / "cap"), _tiny_cfg(), None, **_hooks(seen))
+    res = protocol.evaluate_scene(_capture(tmp_path / "cap"), _tiny_cfg(), None, **_hooks(seen)).to_json()
     assert res["protocol"]["extrapolated"] == ["img004.png", "img020.png"]  # of held-out 4, 8, 12, 16, 20
     fake = res["view_synthesis"]["fake"]
     assert [f["group"] for f in fake["frames"]] == [EXTRAPOLATED] + [INTERPOLATED] * 3 + [EXTRAPOLATED]
@@ -204,8 +204,8 @@ def test_report_rows_for_both_groups_and_seed_merge_keeps_them(tmp_path):
     )
     # batch evaluate: one unit per seed, merged; the groups come back as mean ± std over the seeds
     one = {s: protocol.evaluate_scene(scene, _tiny_cfg(seeds=1, first_seed=s), None, **_hooks([])) for s in (0, 1)}
-    merged = batch.merge_seeds([(s, r, Path(f"seed{s}")) for s, r in one.items()])
-    whole = res["scenes"][0]
+    merged = batch.merge_seeds([(s, r, Path(f"seed{s}")) for s, r in one.items()]).to_json()
+    whole = res.scenes[0].to_json()
     for sec in ("view_synthesis", "extrapolations"):
         assert merged[sec]["sparself"]["summary"]["psnr"] == whole[sec]["sparself"]["summary"]["psnr"]
     net = merged["view_synthesis"]["sparself"]

@@ -13,7 +13,9 @@ from sparself.evaluation import evaluate as ev
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.figures import grid_rows
 from sparself.evaluation.report import write_report
-from sparself.evaluation.results import NETWORK
+from sparself.evaluation.results import NETWORK, FrameScore, ReconResult, ScoredSet, SeededSets
+from sparself.evaluation.results_file import Results
+from sparself.evaluation.scene_results import SceneResult
 from sparself.evaluation.split import make_split
 from sparself.evaluation.verdict import CANNOT_TELL, DOES_NOT_HELP, HELPS, decide, verdict
 from test_evaluate import N_FRAMES, _capture, _hooks, _NearestRenderer, _tiny_cfg
@@ -44,14 +46,14 @@ def test_one_run_scores_every_n_on_the_same_frames_and_plots_psnr_against_n(tmp_
     hooks["reconstructors"] = {"nearest": _NearestRenderer}
     out = tmp_path / "out"
     res = ev.evaluate([_capture(tmp_path / "cap")], out, _tiny_cfg(inputs=(3, 5), seeds=1), **hooks)
-    runs = res["scenes"]
-    assert [(s["status"], s["name"], s["capture"], s["inputs_n"]) for s in runs] == [
+    runs = res.ok
+    assert [(s.status, s.name, s.capture, s.inputs_n) for s in runs] == [
         ("ok", "cap N=3", "cap", 3),
         ("ok", "cap N=5", "cap", 5),
     ]
-    assert [len(s["protocol"]["inputs"]) for s in runs] == [3, 5]
-    assert runs[0]["protocol"]["scored"] == runs[1]["protocol"]["scored"]
-    assert [s["densification"]["nearest"]["base"]["views"] for s in runs] == [3, 5]
+    assert [len(s.split.inputs) for s in runs] == [3, 5]
+    assert runs[0].split.scored == runs[1].split.scored
+    assert [s.densification["nearest"].rows["base"].views for s in runs] == [3, 5]  # type: ignore[union-attr]
     assert calls == [0, 0]  # the network trained once per N
     assert json.loads((out / "results.json").read_text())["settings"]["inputs"] == [3, 5]
     md = (out / "report.md").read_text()
@@ -68,24 +70,20 @@ def test_a_sparse_capture_runs_once_whatever_n(tmp_path):
     cap = _capture(tmp_path / "cap")
     small = cap.subset(list(range(9)))  # 9 frames: too few for 5 inputs with real frames between them
     res = ev.run_evaluation([small], _tiny_cfg(inputs=(3, 5), seeds=1), None, **hooks)
-    assert [(s["status"], s["inputs_n"]) for s in res["scenes"]] == [("ok", 5)] and calls == [0]
-    assert any(n.startswith("run once for N = 3, 5") for n in res["scenes"][0]["notes"])
+    assert [(s.status, s.inputs_n) for s in res.scenes] == [("ok", 5)] and calls == [0]
+    assert any(n.startswith("run once for N = 3, 5") for n in res.ok[0].notes)
     assert make_split(N_FRAMES, _tiny_cfg(inputs=(3, 5)), 3).kind == "dense"
 
 
-def _summary(psnr: float, std: float | None = None) -> dict:
-    one = {"mean": psnr, "std": std or 0.0, "n_seeds": 3} if std is not None else {"mean": psnr, "n": 3}
-    return {"psnr": one, "ssim": {"mean": 0.5, "n": 3}, "lpips": {"mean": None, "n": 0}}
+def _scored(psnr: float, views: int, seed: int | None = None) -> ScoredSet:
+    return ScoredSet([FrameScore("a.png", 1, psnr, 0.5, None)], seed=seed, views=views)
 
 
-def _entry(base: float, net: float, std: float, oracle: float, instrument: str = "ok") -> dict:
-    return {
-        "status": "ok",
-        "instrument": instrument,
-        "base": {"views": 25, "summary": _summary(base)},
-        NETWORK: {"views": 35, "summary": _summary(net, std)},
-        "oracle": {"views": 35, "summary": _summary(oracle)},
-    }
+def _entry(base: float, net: float, std: float, oracle: float, instrument: str = "ok") -> ReconResult:
+    """A reconstructor's rows: N at ``base`` dB, N + sparself at ``net`` ± ``std`` dB over two seeds, the oracle."""
+    seeds = SeededSets([_scored(net - std, 35, 0), _scored(net + std, 35, 1)])
+    rows = {"base": _scored(base, 25), NETWORK: seeds, "oracle": _scored(oracle, 35)}
+    return ReconResult(rows, instrument=instrument, status="ok")
 
 
 def test_verdict_weighs_the_gain_against_the_spread_over_seeds_and_the_instrument():
@@ -94,8 +92,8 @@ def test_verdict_weighs_the_gain_against_the_spread_over_seeds_and_the_instrumen
     assert decide(-0.5, 0.2) == DOES_NOT_HELP and decide(0.05, None) == DOES_NOT_HELP
     assert decide(None, None) == CANNOT_TELL
     scenes = [
-        {"name": "a", "densification": {"3dgs": _entry(20.0, 21.0, 0.2, 22.0)}},
-        {"name": "b", "densification": {"3dgs": _entry(20.0, 19.0, 0.2, 19.5, "failed: ...")}},
+        SceneResult("a", densification={"3dgs": _entry(20.0, 21.0, 0.2, 22.0)}),
+        SceneResult("b", densification={"3dgs": _entry(20.0, 19.0, 0.2, 19.5, "failed: ...")}),
     ]
     v = verdict(scenes, "3dgs", 25)
     assert v.word == HELPS and v.captures == 1 and v.failed == ["b"]
@@ -113,9 +111,9 @@ def test_an_old_single_n_results_file_still_reports_without_a_sweep(tmp_path):
         "timings": {},
         "protocol": {"rule": "dense: ...", "held_out": ["a.png"], "scored": ["a.png"], "inputs": ["b.png"] * 25},
         "view_synthesis": {},
-        "densification": {"mpi": _entry(20.0, 21.5, 0.1, 23.0)},
+        "densification": {"mpi": _entry(20.0, 21.5, 0.1, 23.0).to_json()},
     }
-    write_report({"settings": {"inputs": 25, "seeds": 3}, "scenes": [scene]}, tmp_path)
+    write_report(Results.from_json({"settings": {"inputs": 25, "seeds": 3}, "scenes": [scene]}), tmp_path)
     md = (tmp_path / "report.md").read_text()
     assert "- mpi: helps: N + sparself +1.50 dB PSNR over N ± 0.10 dB over seeds; 50 % of the oracle" in md
     assert "N = 25 evenly spaced" in md and not list((tmp_path / "figures").glob("sweep_*.png"))
@@ -140,9 +138,9 @@ def test_batch_evaluate_refuses_a_sweep_rather_than_keep_one_n():
 
 def test_the_oracle_share_says_how_many_captures_it_rests_on():
     no_oracle = _entry(20.0, 22.0, 0.1, 0.0)
-    del no_oracle["oracle"]
-    scenes = [{"name": "a", "densification": {"mpi": _entry(20.0, 21.0, 0.1, 22.0)}}]
-    scenes.append({"name": "ring", "densification": {"mpi": no_oracle}})
+    del no_oracle.rows["oracle"]
+    scenes = [SceneResult("a", densification={"mpi": _entry(20.0, 21.0, 0.1, 22.0)})]
+    scenes.append(SceneResult("ring", densification={"mpi": no_oracle}))
     v = verdict(scenes, "mpi", None)
     assert v.change_db == pytest.approx(1.5) and v.share == pytest.approx(0.5) and (v.captures, v.shared) == (2, 1)
     assert "50 % of the oracle's gain (+2.00 dB) on the 1 capture(s) with one; 2 capture(s)" in v.sentence(False)

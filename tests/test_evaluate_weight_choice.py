@@ -9,7 +9,7 @@ import pytest
 from planescene import noise_scene
 from sparself.evaluation import evaluate as ev
 from sparself.evaluation.config import EvalConfig
-from sparself.evaluation.results import NETWORK_WEIGHTED
+from sparself.evaluation.results import NETWORK_WEIGHTED, SeededSets, WeightChoice
 from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_inputs
 from sparself.synthesis.synthesize import Synthesized
 
@@ -75,8 +75,8 @@ def test_validation_fits_use_views_synthesized_without_the_held_back_inputs(tmp_
     )
     calls, fits = [], []
     results = ev.evaluate([scene], tmp_path / "out", cfg, **_fakes(calls, fits))
-    res = results["scenes"][0]
-    inputs = res["protocol"]["inputs"]
+    res = results.ok[0]
+    inputs = res.split.inputs
     held_back = [inputs[i] for i in validation_inputs(N_INPUTS)]
     train = [n for n in inputs if n not in held_back]
     assert len(held_back) == 2 and len(train) == 11
@@ -88,16 +88,17 @@ def test_validation_fits_use_views_synthesized_without_the_held_back_inputs(tmp_
     val = [f for f in fits if f[0] == train]
     assert len(val) == 4 and all(f[1] == {_value(11, 0)} for f in val)
     assert sorted(w for f in val for w in f[2]) == [0.5, 0.5, 1.0, 1.0]
+    choices = {}
     for r in ("a", "b"):
-        wd = res["densification"][r][NETWORK_WEIGHTED]
-        sel = wd["per_seed"][0]["selection"]
-        assert sel["validation_sources"] == train and sel["validation_views"] == held_back
-        assert sel["chosen_on_seed"] == 0 and [p["seed"] for p in wd["per_seed"]] == [0, 1]
+        wd = res.densification[r].rows[NETWORK_WEIGHTED]
+        assert isinstance(wd, SeededSets) and [p.seed for p in wd.per_seed] == [0, 1]
+        sel = choices[r] = wd.per_seed[0].decision
+        assert isinstance(sel, WeightChoice)
+        assert sel.validation_sources == train and sel.validation_views == held_back and sel.chosen_on_seed == 0
     # the final weighted fits (confidence maps x the chosen weight), per reconstructor and seed: each seed's
     # views from all inputs, as the plain rows' (which carry no confidence maps)
     # (the fake's near-black views pull the mean render away from the noise photos: the smaller weight wins)
-    for r in ("a", "b"):
-        assert res["densification"][r][NETWORK_WEIGHTED]["per_seed"][0]["selection"]["weight"] == 0.5
+    assert [c.weight for c in choices.values()] == [0.5, 0.5]
     final = [f for f in fits if f[0] == inputs and f[3]]
     assert [f[1:3] for f in final] == [({_value(N_INPUTS, s)}, {0.5}) for s in (0, 1)] * 2
     plain = [f[1] for f in fits if f[0] == inputs and f[1] and not f[3]]
@@ -106,9 +107,8 @@ def test_validation_fits_use_views_synthesized_without_the_held_back_inputs(tmp_
     assert "views synthesized from 11 inputs without them" in md
     assert "the network was still trained on all inputs" in md
     # results from before (no validation sources recorded) are not described as made without the held-back views
-    for r in ("a", "b"):
-        for p in res["densification"][r][NETWORK_WEIGHTED]["per_seed"]:
-            p["selection"].pop("validation_sources", None)  # (one dict shared by the seeds)
+    for c in choices.values():
+        c.validation_sources = None  # (one record shared by the seeds)
     from sparself.evaluation.report import write_report
 
     md = write_report(results, tmp_path / "older")[0].read_text()

@@ -405,12 +405,14 @@ def test_evaluate_bars_only_on_a_terminal_and_never_with_q(tmp_path, monkeypatch
     import sys
 
     from sparself.evaluation import evaluate as ev
+    from sparself.evaluation.results_file import Results
+    from sparself.evaluation.scene_results import SceneResult
 
     seen = {}
 
     def fake(paths, out, cfg, overwrite=False):
         seen["progress"] = cfg.progress
-        return {"scenes": [{"name": "x", "status": "ok"}]}
+        return Results(scenes=[SceneResult("x", status="ok")])
 
     monkeypatch.setattr(ev, "evaluate", fake)
     if tty:

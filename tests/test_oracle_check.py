@@ -5,54 +5,41 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from sparself.evaluation.densification import oracle_share
 from sparself.evaluation.report import write_report
-from sparself.evaluation.results import NETWORK
+from sparself.evaluation.results import NETWORK, FrameScore, ReconResult, ScoredSet, SeededSets
+from sparself.evaluation.results_file import Results, Settings
+from sparself.evaluation.scene_results import SceneResult
 
 
-def _entry(base: float, net: float, oracle: float) -> dict:
-    s = lambda v: {"summary": {"psnr": {"mean": v, "std": 0.0}, "ssim": {"mean": None}, "lpips": {"mean": None}}}  # noqa: E731
-    return {
-        "status": "ok",
-        "base": {"views": 25, **s(base)},
-        NETWORK: {"views": 35, **s(net)},
-        "oracle": {"views": 35, **s(oracle)},
-    }
+def _entry(base: float, net: float, oracle: float) -> ReconResult:
+    s = lambda v, views, seed=None: ScoredSet([FrameScore("a.png", 1, v, 0.5, None)], seed, views)  # noqa: E731
+    rows = {"base": s(base, 25), NETWORK: SeededSets([s(net, 35, 0)]), "oracle": s(oracle, 35)}
+    return ReconResult(rows, status="ok")
 
 
 def test_share_only_when_the_oracle_beats_n():
     ok = _entry(20.0, 21.0, 22.0)
-    oracle_share(ok)
-    assert ok["instrument"] == "ok" and ok["oracle_share"] == 0.5 and ok["oracle_gain_db"] == 2.0
+    ok.check_instrument()
+    assert ok.instrument == "ok" and ok.shares == {NETWORK: 0.5} and ok.oracle_gain_db == 2.0
+    assert ok.to_json()["oracle_share"] == 0.5  # as results.json has always written it
     bad = _entry(23.42, 23.5, 22.73)  # a capture where more real photos scored lower
-    oracle_share(bad)
-    assert bad["instrument"].startswith("failed") and "22.73" in bad["instrument"]
-    assert bad["oracle_share"] is None
+    bad.check_instrument()
+    assert bad.instrument is not None and bad.instrument.startswith("failed") and "22.73" in bad.instrument
+    assert bad.instrument_failed and bad.shares[NETWORK] is None
     no_oracle = _entry(20.0, 21.0, 0.0)
-    del no_oracle["oracle"]
-    oracle_share(no_oracle)
-    assert "instrument" not in no_oracle and "oracle_share" not in no_oracle
+    del no_oracle.rows["oracle"]
+    no_oracle.check_instrument()
+    assert no_oracle.instrument is None and no_oracle.shares == {}
+    assert "instrument" not in no_oracle.to_json() and "oracle_share" not in no_oracle.to_json()
 
 
 def test_report_says_the_instrument_failed_instead_of_a_share(tmp_path):
     good, bad = _entry(20.0, 21.0, 22.0), _entry(23.42, 23.5, 22.73)
     for e in (good, bad):
-        oracle_share(e)
-    bad["backend"] = "cpu: test"
-    scenes = [
-        {
-            "name": n,
-            "status": "ok",
-            "notes": [],
-            "timings": {},
-            "view_synthesis": {},
-            "midpoints": {},
-            "protocol": {"rule": "dense", "held_out": [], "scored": [], "inputs": []},
-            "densification": {"3dgs": e},
-        }
-        for n, e in (("good", good), ("bad", bad))
-    ]
-    write_report({"settings": {"lpips_status": "unavailable"}, "not_run": {}, "scenes": scenes}, tmp_path)
+        e.check_instrument()
+    bad.fitted, bad.backend = True, "cpu: test"
+    scenes: list = [SceneResult(n, status="ok", densification={"3dgs": e}) for n, e in (("good", good), ("bad", bad))]
+    write_report(Results(Settings({"lpips_status": "unavailable"}), {}, scenes), tmp_path)
     md = (tmp_path / "report.md").read_text()
     good_rows = [line for line in md.splitlines() if line.startswith("| good (25→35)")]
     bad_rows = [line for line in md.splitlines() if line.startswith("| bad (25→35)")]

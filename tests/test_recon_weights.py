@@ -16,7 +16,7 @@ from sparself.capture.scene import Frame
 from sparself.evaluation import evaluate as ev
 from sparself.evaluation import scene_eval
 from sparself.evaluation.config import EvalConfig
-from sparself.evaluation.results import MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED
+from sparself.evaluation.results import MIN_ORACLE_GAIN_DB, NETWORK, NETWORK_WEIGHTED, SeededSets, WeightChoice
 from sparself.evaluation.split import make_split
 from sparself.evaluation.weighting import ValidationViews, choose_weight, validation_inputs
 from sparself.recon.common import photometric_loss
@@ -142,8 +142,8 @@ def test_choose_weight_picks_the_weight_that_renders_held_back_inputs_best():
     bad = np.zeros((3,) + truth.shape, np.float32)
     views = ValidationViews(bad, None, [f.name for f in sc.without([2, 7]).frames])
     choice = choose_weight(sc, planned, views, (1.0, 0.25, 0.5), _Renderer)
-    assert choice["weight"] == 0.25 and choice["validation_views"] == ["src2", "src7"]
-    assert choice["validation_psnr"]["0.25"] > choice["validation_psnr"]["0.5"] > choice["validation_psnr"]["1.0"]
+    assert choice.weight == 0.25 and choice.validation_views == ["src2", "src7"]
+    assert choice.validation_psnr["0.25"] > choice.validation_psnr["0.5"] > choice.validation_psnr["1.0"]
     assert validation_inputs(25) == [2, 7, 12, 17, 22] and validation_inputs(3) == [1]
 
 
@@ -185,20 +185,21 @@ def test_evaluate_reports_the_weighted_variant_without_reading_held_out_photos(t
         return synth
 
     res = ev.evaluate([scene], tmp_path / "out", cfg, network=network, reconstructors={"mean": _Renderer})
-    d = res["scenes"][0]["densification"]["mean"]
-    assert d["status"] == "ok", d.get("error")
-    wd = d[NETWORK_WEIGHTED]
-    assert [p["seed"] for p in wd["per_seed"]] == [0, 1] and wd["views"] == 8
-    sel = wd["per_seed"][0]["selection"]
-    assert sel["weight"] in (0.5, 1.0) and set(sel["validation_psnr"]) == {"0.5", "1.0"} and sel["confidence"]
-    assert "oracle_share_weighted" in d or d.get("oracle_gain_db", 1) < MIN_ORACLE_GAIN_DB
+    d = res.ok[0].densification["mean"]
+    assert d.status == "ok", d.error
+    wd = d.rows[NETWORK_WEIGHTED]
+    assert isinstance(wd, SeededSets) and [p.seed for p in wd.per_seed] == [0, 1] and wd.views == 8
+    sel = wd.per_seed[0].decision
+    assert isinstance(sel, WeightChoice) and sel.weight in (0.5, 1.0) and sel.confidence
+    assert set(sel.validation_psnr) == {"0.5", "1.0"}
+    assert d.shares.get(NETWORK_WEIGHTED) is not None or (d.oracle_gain_db or 1) < MIN_ORACLE_GAIN_DB
     md = (tmp_path / "out" / "report.md").read_text()
     assert "N + sparself, weighted" in md and "synthetic-frame weight" in md
     assert "mean: N + sparself, weighted (confidence x the chosen synthetic-frame weight) vs unweighted:" in md
     off = ev.evaluate(
         [scene], tmp_path / "off", replace(cfg, weighted=False), network=network, reconstructors={"mean": _Renderer}
     )
-    assert NETWORK_WEIGHTED not in off["scenes"][0]["densification"]["mean"]
+    assert NETWORK_WEIGHTED not in off.ok[0].densification["mean"].rows
 
 
 def test_mpi_blend_counts_each_pixel_by_its_reference_weight():
@@ -233,22 +234,21 @@ def test_merge_seeds_keeps_each_units_weighted_fit_and_its_choice():
     from pathlib import Path
 
     from sparself.batch import merge_seeds
-    from sparself.evaluation.results import FrameScore, ScoredSet, SeededSets
+    from sparself.evaluation.results import FrameScore, ReconResult, ScoredSet, SeededSets
+    from sparself.evaluation.scene_results import SceneResult
 
     def unit(seed, psnr):
-        def sets(p):
-            return SeededSets([ScoredSet([FrameScore("f", 3, p, 0.5, None)], seed=seed, views=8)]).to_json()
+        def sets(p, decision=None):
+            return SeededSets([ScoredSet([FrameScore("f", 3, p, 0.5, None)], seed=seed, views=8, decision=decision)])
 
-        weighted = sets(psnr + 1)
-        weighted["per_seed"][0]["selection"] = {"weight": 0.25 * (seed + 1), "chosen_on_seed": seed}
-        one = ScoredSet([FrameScore("f", 3, 20.0, 0.5, None)], views=5).to_json()
-        orc = ScoredSet([FrameScore("f", 3, 24.0, 0.5, None)], views=8).to_json()
-        return {
-            "name": "cap",
-            "densification": {"nerf": {"base": one, "oracle": orc, NETWORK: sets(psnr), NETWORK_WEIGHTED: weighted}},
-        }
+        choice = WeightChoice(0.25 * (seed + 1), {}, [], None, True, chosen_on_seed=seed)
+        one = ScoredSet([FrameScore("f", 3, 20.0, 0.5, None)], views=5)
+        orc = ScoredSet([FrameScore("f", 3, 24.0, 0.5, None)], views=8)
+        rows = {"base": one, "oracle": orc, NETWORK: sets(psnr), NETWORK_WEIGHTED: sets(psnr + 1, choice)}
+        return SceneResult("cap", densification={"nerf": ReconResult(rows)})
 
-    m = merge_seeds([(1, unit(1, 22.0), Path("seed1")), (0, unit(0, 21.0), Path("seed0"))])["densification"]["nerf"]
+    merged = merge_seeds([(1, unit(1, 22.0), Path("seed1")), (0, unit(0, 21.0), Path("seed0"))])
+    m = merged.to_json()["densification"]["nerf"]  # as the batch's results.json has it
     wd = m[NETWORK_WEIGHTED]
     assert [p["seed"] for p in wd["per_seed"]] == [0, 1]
     assert [p["selection"]["weight"] for p in wd["per_seed"]] == [0.25, 0.5]

@@ -9,45 +9,50 @@ import numpy as np
 from sparself.evaluation.conclusions import conclusions
 from sparself.evaluation.document import fmt
 from sparself.evaluation.report import write_report
+from sparself.evaluation.results import FrameScore, ReconResult, ScoredSet, SeededSets
+from sparself.evaluation.results_file import Results, Settings
+from sparself.evaluation.scene_results import SceneFailure, SceneResult, SplitInfo, Timings, ViewSynthesisResult
 
 
-def _summary(psnr, ssim, lpips, seeds=None):
-    def one(v):
-        if seeds:
-            return {"mean": v, "std": 0.1, "n_seeds": seeds}
-        return {"mean": v, "std": 0.0, "min": v, "max": v, "n": 0 if v is None else 3, "n_inf": 0}
-
-    return {"psnr": one(psnr), "ssim": one(ssim), "lpips": one(lpips)}
+def _scored(psnr, ssim, lpips, views=None, seed=None) -> ScoredSet:
+    return ScoredSet([FrameScore("a.png", 1, psnr, ssim, lpips)], seed=seed, views=views)
 
 
-def _results(lpips_status: str, lp_value):
-    scene = {
-        "name": "toy",
-        "status": "ok",
-        "notes": [],
-        "timings": {"network": 1.0, "baselines": 2.0, "total": 3.0},
-        "protocol": {"rule": "dense: ...", "held_out": ["a.png"], "scored": ["a.png"], "inputs": ["b.png"]},
-        "view_synthesis": {
-            "sparself": {"summary": _summary(24.0, 0.8, lp_value, seeds=3)},
-            "blend": {"summary": _summary(23.0, 0.7, lp_value)},
+def _seeded(psnr, ssim, lpips, views=None) -> SeededSets:
+    """Two seeds 0.1 below and above each value: mean ± 0.1 over seeds."""
+    return SeededSets(
+        [
+            _scored(psnr + d, ssim + d, None if lpips is None else lpips + d, views, seed)
+            for seed, d in enumerate((-0.1, 0.1))
+        ]
+    )
+
+
+def _results(lpips_status: str, lp_value) -> Results:
+    mpi = ReconResult(
+        {
+            "base": _scored(20.0, 0.6, lp_value, views=25),
+            "sparself": _seeded(21.5, 0.65, lp_value, views=35),
+            "oracle": _scored(23.0, 0.7, lp_value, views=35),
         },
-        "midpoints": {},
-        "densification": {
-            "mpi": {
-                "status": "ok",
-                "base": {"views": 25, "summary": _summary(20.0, 0.6, lp_value)},
-                "sparself": {"views": 35, "summary": _summary(21.5, 0.65, lp_value, seeds=3)},
-                "oracle": {"views": 35, "summary": _summary(23.0, 0.7, lp_value)},
-                "oracle_share": 0.5,
-                "oracle_gain_db": 3.0,
-            }
-        },
-    }
-    return {
-        "settings": {"inputs": 25, "seeds": 3, "lpips_status": lpips_status, "versions": {"torch": "x"}},
-        "not_run": {"dietnerf": "not run: needs CLIP weights that cannot be fetched here"},
-        "scenes": [scene, {"name": "broken", "status": "failed", "error": "InputError: x.png: not an image"}],
-    }
+        status="ok",
+    )
+    mpi.check_instrument()
+    scene = SceneResult(
+        "toy",
+        status="ok",
+        timings=Timings(1.0, 2.0, 3.0),
+        split=SplitInfo(kind="dense", rule="dense: ...", held_out=["a.png"], scored=["a.png"], inputs=["b.png"]),
+        synthesis=ViewSynthesisResult(
+            {"sparself": _seeded(24.0, 0.8, lp_value), "blend": _scored(23.0, 0.7, lp_value)}
+        ),
+        densification={"mpi": mpi},
+    )
+    return Results(
+        Settings({"inputs": 25, "seeds": 3, "lpips_status": lpips_status, "versions": {"torch": "x"}}),
+        {"dietnerf": "not run: needs CLIP weights that cannot be fetched here"},
+        [scene, SceneFailure("broken", None, "InputError: x.png: not an image")],
+    )
 
 
 def _lpips_rows(md: str) -> list[str]:

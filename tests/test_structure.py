@@ -79,10 +79,11 @@ def test_every_training_and_plan_option_is_on_the_command_line():
 def test_evaluate_options_reach_the_network_config(monkeypatch):
     from sparself import cli
     from sparself.evaluation import evaluate
+    from sparself.evaluation.results_file import Results
 
     seen = {}
     monkeypatch.setattr(
-        evaluate, "evaluate", lambda paths, out, cfg, overwrite=False: seen.setdefault("cfg", cfg) and {"scenes": []}
+        evaluate, "evaluate", lambda paths, out, cfg, overwrite=False: seen.setdefault("cfg", cfg) and Results()
     )
     cli.main(
         [

@@ -16,6 +16,7 @@ from sparself.core.errors import ConfigError
 from sparself.evaluation import evaluate as ev
 from sparself.evaluation import protocol, scene_eval
 from sparself.evaluation.config import EvalConfig
+from sparself.evaluation.scene_results import InputPoints, SceneResult
 from sparself.evaluation.split import make_split
 from sparself.synthesis.baselines import BASELINES
 
@@ -116,8 +117,8 @@ def _run(tmp_path, scene, points: str):
     )
     hooks = dict(network=lambda sc, seed: BASELINES["blend"], reconstructors={"rec": Recorder})
     res = ev.run_evaluation([scene], cfg, tmp_path / f"out-{points}", **hooks)
-    s = res["scenes"][0]
-    assert s["status"] == "ok", s.get("error")
+    s = res.scenes[0]
+    assert isinstance(s, SceneResult) and s.status == "ok", s
     return s, seen, res
 
 
@@ -144,11 +145,11 @@ def test_evaluation_points_come_from_the_inputs_alone(tmp_path, monkeypatch):
     monkeypatch.setattr(protocol, "triangulate", spy)
     s, seen, res = _run(tmp_path, scene, "inputs")
     assert given == [[scene.frames[i].name for i in split.inputs]]
-    assert res["settings"]["points"] == "inputs" and s["input_points"]["source"] == "inputs"
+    assert res.settings.points == "inputs" and s.input_points is not None and s.input_points.source == "inputs"
     # N, N + sparself, weighted (choice fits and the final fit), N + nearest, oracle: every fit got them
     assert len(seen) >= 5 and {n for _, n in seen} >= {0, 3}
     first = seen[0][0]
-    assert first is not None and len(first) == s["input_points"]["points"] >= MIN_POINTS
+    assert first is not None and len(first) == s.input_points.points >= MIN_POINTS
     assert _on_plane(first) > 0.9 and np.all(first[:, 2] < 100)  # none of the planted far points
     for pts, _ in seen:
         np.testing.assert_array_equal(pts, first)
@@ -157,7 +158,7 @@ def test_evaluation_points_come_from_the_inputs_alone(tmp_path, monkeypatch):
 def test_evaluation_can_keep_the_capture_points_and_drops_too_few(tmp_path, monkeypatch):
     scene = _capture(tmp_path / "cap")
     s, seen, res = _run(tmp_path, scene, "capture")
-    assert res["settings"]["points"] == "capture" and s["input_points"] == {"source": "capture", "points": 300}
+    assert res.settings.points == "capture" and s.input_points == InputPoints("capture", 300)
     assert all(np.array_equal(pts, scene.points) for pts, _ in seen)
     monkeypatch.setattr(
         protocol,
@@ -168,7 +169,7 @@ def test_evaluation_can_keep_the_capture_points_and_drops_too_few(tmp_path, monk
     )
     s, seen, _ = _run(tmp_path, scene, "inputs")
     assert all(pts is None for pts, _ in seen)
-    assert any("none used" in n for n in s["notes"])
+    assert any("none used" in n for n in s.notes)
 
 
 def test_points_option_is_validated():

@@ -52,13 +52,20 @@ from sparself.core.outputs import (
 )
 from sparself.evaluation.batch_report import write_densify_report
 from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig
-from sparself.evaluation.densification import oracle_share
 from sparself.evaluation.evaluate import read_capture_list
 from sparself.evaluation.instruments import versions
 from sparself.evaluation.protocol import name_from_source
 from sparself.evaluation.report import write_report
 from sparself.evaluation.report_context import safe_name
-from sparself.evaluation.results import NETWORK, NETWORK_WEIGHTED, FrameScore, ScoredSet, SeededSets
+from sparself.evaluation.results import NETWORK, ReconResult, Row, SeededSets
+from sparself.evaluation.results_file import (
+    DensifyBatchResults,
+    Results,
+    UnitFailure,
+    UnitRecord,
+    read_results,
+)
+from sparself.evaluation.scene_results import SceneFailure, SceneResult, Timings
 from sparself.synthesis.plan import PlanConfig
 from sparself.synthesis.train_config import TrainConfig
 
@@ -210,32 +217,23 @@ def _publish(out: Path, write) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _failures(results: list[UnitResult]) -> list[dict]:
-    return [{"capture": r.capture, "seed": r.seed, "error": r.error} for r in results if r.status != "ok"]
+def _failures(results: list[UnitResult]) -> list[UnitFailure]:
+    return [UnitFailure(r.capture, r.seed, r.error) for r in results if r.status != "ok"]
 
 
 def _densify_report(units: list[Unit], results: list[UnitResult], tmp: Path, manifest: Path) -> None:
     rows = [
-        {
+        UnitRecord(
             **dataclasses.asdict(r),
-            "name": u.capture,
-            "source": str(u.source),
-            "output": str(u.out.relative_to(u.logs.parent)),
-        }
+            name=u.capture,
+            source=str(u.source),
+            output=str(u.out.relative_to(u.logs.parent)),
+        )
         for u, r in zip(units, results)
     ]
-    data = {
-        "settings": {
-            "kind": "densify",
-            "manifest": str(manifest),
-            "versions": versions(),
-            "config": {u.capture: config_json(u.config) for u in units},
-        },
-        "scenes": rows,
-        "failures": _failures(results),
-        "not_run": {},
-    }
-    (tmp / "results.json").write_text(json.dumps(data, indent=1))
+    config = {u.capture: config_json(u.config) for u in units}
+    data = DensifyBatchResults(str(manifest), versions(), config, rows, _failures(results))
+    (tmp / "results.json").write_text(json.dumps(data.to_json(), indent=1))
     write_densify_report(data, tmp)
 
 
@@ -245,77 +243,79 @@ def _evaluate_report(units: list[Unit], results: list[UnitResult], tmp: Path, ma
     by_capture: dict[str, list[tuple[Unit, UnitResult]]] = {}
     for u, r in zip(units, results):
         by_capture.setdefault(u.capture, []).append((u, r))
-    data: dict = {"settings": {}, "not_run": {}, "scenes": [], "failures": _failures(results)}
+    data = Results(failures=_failures(results))
     for name, pairs in by_capture.items():
-        ok = [(u, json.loads((u.out / "results.json").read_text())) for u, r in pairs if r.status == "ok"]
+        ok = [(u, read_results(u.out / "results.json")) for u, r in pairs if r.status == "ok"]
         bad = [f"seed {r.seed}: {r.error}" for _, r in pairs if r.status != "ok"]
         if not ok:
-            data["scenes"].append(
-                {"name": name, "source": str(pairs[0][0].source), "status": "failed", "error": "; ".join(bad)}
-            )
+            data.scenes.append(SceneFailure(name, str(pairs[0][0].source), "; ".join(bad)))
             continue
-        if not data["settings"]:
-            data["settings"], data["not_run"] = ok[0][1]["settings"], ok[0][1].get("not_run", {})
-        scene = merge_seeds([(u.seed, res["scenes"][0], u.out.relative_to(u.logs.parent)) for u, res in ok])
-        scene["notes"] = scene.get("notes", []) + [f"{b} (failed)" for b in bad]
-        data["scenes"].append(scene)
+        if not data.settings.recorded:
+            data.settings, data.not_run = ok[0][1].settings, ok[0][1].not_run
+        scene = merge_seeds([(u.seed, _ran(res, u.out), u.out.relative_to(u.logs.parent)) for u, res in ok])
+        scene.notes += [f"{b} (failed)" for b in bad]
+        data.scenes.append(scene)
     seeds = [u.seed for u in units]  # each evaluate unit runs its config's first_seed
-    data["settings"].update(seeds=len(set(seeds)), batch_manifest=str(manifest))
-    data["settings"].pop("first_seed", None)
-    data["batch"] = {
-        "units": [
-            {**dataclasses.asdict(r), "output": str(u.out.relative_to(u.logs.parent))} for u, r in zip(units, results)
-        ]
-    }
-    (tmp / "results.json").write_text(json.dumps(data, indent=1, allow_nan=True))
+    data.settings = data.settings.for_batch(len(set(seeds)), str(manifest))
+    data.units = [
+        UnitRecord(**dataclasses.asdict(r), output=str(u.out.relative_to(u.logs.parent)))
+        for u, r in zip(units, results)
+    ]
+    (tmp / "results.json").write_text(json.dumps(data.to_json(), indent=1, allow_nan=True))
     write_report(data, tmp)
 
 
-SEEDED_SECTIONS = ("view_synthesis",) + PLANNED_SECTIONS  # a scene's sections with the network's per-seed sets
+def _ran(res: Results, folder: Path) -> SceneResult:
+    """The one run of a finished unit's results."""
+    scene = res.scenes[0] if res.scenes else None
+    if not isinstance(scene, SceneResult):
+        raise InputError(f"{folder / 'results.json'}: holds no finished run; remove {folder} to redo it")
+    return scene
 
 
-def merge_seeds(parts: list[tuple[int, dict, Path]]) -> dict:
+def _network_sets(s: SceneResult) -> list[dict[str, Row]]:
+    """A scene's sections that hold the network's per-seed sets: the held-out poses and the planned ones."""
+    return [s.synthesis.held_out] + [s.synthesis.planned(sec) for sec in PLANNED_SECTIONS]
+
+
+def _add_seeds(rows: dict[str, Row], name: str, more: SeededSets) -> None:
+    """Append ``more``'s seeds to ``rows[name]`` (made where absent, or replacing the first unit's failure)."""
+    row = rows.get(name)
+    if not isinstance(row, SeededSets):
+        row = rows[name] = SeededSets()
+    row.per_seed += more.per_seed
+
+
+def merge_seeds(parts: list[tuple[int, SceneResult, Path]]) -> SceneResult:
     """One capture's evaluate result from its seed units: (seed, scene result, unit folder relative to
-    the report). The lowest seed's result carries the baselines and the oracle; sparself's per-seed
-    entries of the others are added and its summaries (and oracle share) recomputed over all seeds."""
+    the report). The lowest seed's result carries the baselines and the oracle; the per-seed sets of the
+    others (sparself's views and every per-seed reconstruction row, each with its own decision) are added
+    and their summaries (and the oracle shares) recomputed over all seeds."""
     parts = sorted(parts, key=lambda p: p[0])
     merged = copy.deepcopy(parts[0][1])
-    merged["examples"], merged["timings"] = {}, {}
+    merged.examples, merged.timings = {}, Timings()
     for seed, s, rel in parts:
         if s is not parts[0][1]:
-            for sec in SEEDED_SECTIONS:
-                if NETWORK in s.get(sec, {}):
-                    merged.setdefault(sec, {}).setdefault(NETWORK, {"per_seed": []})["per_seed"] += s[sec][NETWORK][
-                        "per_seed"
-                    ]
-            for r, d in s.get("densification", {}).items():
-                for key in (NETWORK, NETWORK_WEIGHTED):  # a unit's weighted fit records its own chosen weight
-                    if "per_seed" in d.get(key, {}):
-                        m = merged.setdefault("densification", {}).setdefault(r, {})
-                        if "per_seed" not in m.get(key, {}):  # absent, or the first unit's failure
-                            m[key] = {"per_seed": [], "views": d[key].get("views")}
-                        m[key]["per_seed"] += d[key]["per_seed"]
-        for frame, imgs in s.get("examples", {}).items():
-            ex = merged["examples"].setdefault(frame, {})
+            for mine, theirs in zip(_network_sets(merged), _network_sets(s)):
+                net = theirs.get(NETWORK)
+                if isinstance(net, SeededSets):
+                    _add_seeds(mine, NETWORK, net)
+            for r, d in s.densification.items():
+                for name, row in d.rows.items():
+                    if isinstance(row, SeededSets):
+                        _add_seeds(merged.densification.setdefault(r, ReconResult()).rows, name, row)
+        for frame, imgs in s.examples.items():
+            ex = merged.examples.setdefault(frame, {})
             for k, v in imgs.items():  # the ground truth and base fits are the same in every seed's folder
                 ex.setdefault(k, str(rel / v))
-        for k, v in s.get("timings", {}).items():
-            merged["timings"][k] = merged["timings"].get(k, 0.0) + v
-    if merged.get("camera_plot"):
-        merged["camera_plot"] = str(parts[0][2] / merged["camera_plot"])
-    for entry in [merged.get(sec, {}).get(NETWORK) for sec in SEEDED_SECTIONS] + [
-        d.get(k) for d in merged.get("densification", {}).values() for k in (NETWORK, NETWORK_WEIGHTED)
-    ]:
-        if entry and entry.get("per_seed"):
-            again = _seeded(entry["per_seed"]).to_json()  # the summary, and per group where there are two
-            entry.update({k: again[k] for k in ("summary", "groups") if k in again})
-    for d in merged.get("densification", {}).values():
-        oracle_share(d)
+        merged.timings = merged.timings.plus(s.timings)
+    if merged.camera_plot:
+        merged.camera_plot = str(parts[0][2] / merged.camera_plot)
+    seeded = [sec[NETWORK] for sec in _network_sets(merged) if NETWORK in sec]
+    seeded += [row for d in merged.densification.values() for row in d.rows.values()]
+    for row in seeded:
+        if isinstance(row, SeededSets) and row.per_seed:
+            row.summarized = True  # summarised again over all seeds
+    for d in merged.densification.values():
+        d.check_instrument()
     return merged
-
-
-def _seeded(per_seed: list[dict]):
-    """The SeededSets of per-seed records read back from results.json (to summarise them again)."""
-    return SeededSets(
-        [ScoredSet([FrameScore(**f) for f in p["frames"]], p.get("seed"), p.get("views")) for p in per_seed]
-    )

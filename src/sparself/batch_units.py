@@ -17,6 +17,7 @@ from sparself.core.errors import ConfigError, InputError, OutputError, SparselfE
 from sparself.core.outputs import atomic_file
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.evaluate import evaluate
+from sparself.evaluation.scene_results import SceneFailure
 from sparself.evaluation.selfcheck import SelfCheckConfig
 from sparself.pipeline import DensifyConfig, densify
 from sparself.synthesis.plan import PlanConfig
@@ -230,9 +231,9 @@ def evaluate_unit(unit: Unit) -> UnitResult:
     assert isinstance(unit.config, EvalConfig)
     scene = read_scene(unit.source)  # an unreadable capture fails here and writes nothing
     res = evaluate([scene], unit.out, unit.config, overwrite=True)
-    s = res["scenes"][0]
-    if s.get("status") != "ok":
-        raise SparselfError(str(s.get("error", "evaluation failed")).splitlines()[0])
+    s = res.scenes[0]
+    if s.status != "ok":
+        raise SparselfError((s.error if isinstance(s, SceneFailure) else "evaluation failed").splitlines()[0])
     return UnitResult(unit.capture, unit.seed, "ok")
 
 

@@ -150,13 +150,13 @@ def run_evaluate(args) -> int:
         train_cfg=train_config(args, skip=EVAL_OWNS),
         **given(EvalConfig, args),
     )
-    bad = [s["name"] for s in res["scenes"] if s.get("status") != "ok"]
+    bad = [s.name for s in res.failed]
     print(
-        f"evaluated {len(res['scenes']) - len(bad)} scene(s) -> {args.out / 'report.md'}"
+        f"evaluated {len(res.scenes) - len(bad)} scene(s) -> {args.out / 'report.md'}"
         + (f"; failed: {', '.join(bad)}" if bad else "")
         + f" in {took(t0)}"
     )
-    return 1 if bad and len(bad) == len(res["scenes"]) else 0
+    return 1 if bad and len(bad) == len(res.scenes) else 0
 
 
 def add_poses(sub) -> None:

@@ -17,7 +17,7 @@ from typing import Callable, Literal
 from sparself.capture.scene import Scene
 from sparself.evaluation.fixing import fixed
 from sparself.evaluation.instruments import renders, with_images
-from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ScoredSet, SeededSets
+from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
 from sparself.recon import Renderer
@@ -57,15 +57,17 @@ def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig
     return ev.score(out, label, ev.scored, seed=ev.cfg.first_seed + k)
 
 
-def checked_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict, base: ScoredSet) -> None:
+def checked_fits(
+    ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, base: ScoredSet
+) -> None:
     """Per seed: what densify writes for ``rname``, fitted and scored on the held-out photos, into
-    ``entry[NETWORK_CHECKED]`` (with each seed's self-check record), and the fixer's views into
-    ``entry[NETWORK_FIXED]`` where it was used."""
+    ``entry``'s NETWORK_CHECKED row (each seed's self-check record as its decision), and the fixer's views
+    into its NETWORK_FIXED row where it was used."""
     cfg = check_config(ev, rname)
     if cfg is None:
         return
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
-    sets, views, records = SeededSets(), SeededSets(), []
+    sets, views = SeededSets(), SeededSets()
     for k, synth in enumerate(ev.net_synths):
         seed = ev.cfg.first_seed + k
         _, checked, _ = checked_views(ev.inputs, ev.planned, plan, synth, cfg)
@@ -75,12 +77,11 @@ def checked_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], en
             scored = ev.score(renders(fit(sc), ev.full, ev.targets), label, ev.scored, seed=seed, views=len(sc))
         else:  # nothing kept: the capture is the N photos, and so is its fit
             scored = replace(base, seed=seed)
+        scored.decision = checked.record
         sets.per_seed.append(scored)
-        assert checked.record is not None
-        records.append({**scored.to_json(), "selfcheck": checked.record.to_json()})
         fx = _fixed_targets(ev, k, checked, cfg, f"{NETWORK_FIXED} ({rname}) seed {seed}")
         if fx is not None:
             views.per_seed.append(fx)
-    entry[NETWORK_CHECKED] = {**sets.to_json(), "per_seed": records}
+    entry.rows[NETWORK_CHECKED] = sets
     if views.per_seed:
-        entry[NETWORK_FIXED] = views.to_json()
+        entry.rows[NETWORK_FIXED] = views

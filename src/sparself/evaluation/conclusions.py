@@ -6,26 +6,30 @@ import numpy as np
 
 from sparself.evaluation.report_context import recon_names
 from sparself.evaluation.results import (
+    BASE,
     EXTRAPOLATED,
     INTERPOLATED,
     NETWORK,
+    NETWORK_CHECKED,
+    NETWORK_FIXED,
     NETWORK_WEIGHTED,
+    ORACLE,
+    ReconResult,
     mean_of,
 )
+from sparself.evaluation.results_file import Results
+from sparself.evaluation.scene_results import SceneResult
 
 
-def conclusions(results: dict) -> list[str]:
+def conclusions(results: Results) -> list[str]:
     """Plain sentences: does N + synth beat N (per reconstructor), does sparself beat the baselines."""
-    ok = [s for s in results.get("scenes", []) if s.get("status") == "ok"]
+    ok = results.ok
     out = []
     for r in recon_names(ok):
         pairs = [
-            (
-                mean_of(s["densification"][r].get("base"), "psnr")[0],
-                mean_of(s["densification"][r].get(NETWORK), "psnr")[0],
-            )
+            (mean_of(s.row(r, BASE), "psnr")[0], mean_of(s.row(r, NETWORK), "psnr")[0])
             for s in ok
-            if r in s["densification"]
+            if r in s.densification
         ]
         known = [(a, b) for a, b in pairs if a is not None and b is not None]
         if not known:
@@ -38,23 +42,26 @@ def conclusions(results: dict) -> list[str]:
             f"{r}: N + sparself views {verdict} N views on average by PSNR ({d:+.2f} dB; better on "
             f"{wins} of {len(known)} scenes)."
         )
+        ran = [s.densification[r] for s in ok if r in s.densification]
+        out += _fixer_sentences(r, ran)
         for k in sorted(
-            {k for s in ok for k, v in s["densification"].get(r, {}).items() if isinstance(v, dict) and "summary" in v}
-            - {"base", NETWORK}
+            {k for d in ran for k, row in d.rows.items() if row.has_summary} - {BASE, NETWORK, NETWORK_FIXED}
         ):
-            both = [
-                (mean_of(s["densification"][r].get(NETWORK), "psnr")[0], mean_of(s["densification"][r][k], "psnr")[0])
-                for s in ok
-                if r in s["densification"] and k in s["densification"][r]
-            ]
+            both = [(mean_of(d.row(NETWORK), "psnr")[0], mean_of(d.row(k), "psnr")[0]) for d in ran if k in d.rows]
             diffs = [a - b for a, b in both if a is not None and b is not None]
-            if diffs and k == NETWORK_WEIGHTED:
+            if diffs and k == NETWORK_CHECKED:
+                out.append(
+                    f"{r}: N + sparself, checked (what densify writes: views where {r} is weak, fixed, kept only "
+                    f"where they pay on held-back inputs) vs every planned view: {-float(np.mean(diffs)):+.2f} dB "
+                    f"PSNR on average over {len(diffs)} scene(s)."
+                )
+            elif diffs and k == NETWORK_WEIGHTED:
                 out.append(
                     f"{r}: N + sparself, weighted (confidence x the chosen synthetic-frame weight) vs "
                     f"unweighted: {-float(np.mean(diffs)):+.2f} dB PSNR on average over {len(diffs)} scene(s)."
                 )
             elif diffs:
-                who = "the real photos (oracle)" if k == "oracle" else f"{k}-synthesized views"
+                who = "the real photos (oracle)" if k == ORACLE else f"{k}-synthesized views"
                 out.append(
                     f"{r}: N + sparself vs N + {who}: {float(np.mean(diffs)):+.2f} dB PSNR on average "
                     f"over the {len(diffs)} scene(s) where both ran."
@@ -63,24 +70,36 @@ def conclusions(results: dict) -> list[str]:
     return out or ["No scene produced results."]
 
 
-def view_synthesis_conclusions(s: dict) -> list[str]:
+def _fixer_sentences(r: str, ran: list[ReconResult]) -> list[str]:
+    """The fixer's views at the held-out poses against the N-only render of ``r`` there, where it was used."""
+    both = [(mean_of(d.row(NETWORK_FIXED), "psnr")[0], mean_of(d.row(BASE), "psnr")[0]) for d in ran]
+    diffs = [a - b for a, b in both if a is not None and b is not None]
+    if not diffs:
+        return []
+    return [
+        f"{r}: the fixer's views (network view + {r} render, merged per pixel) vs the render of {r} from N alone "
+        f"at the held-out poses: {float(np.mean(diffs)):+.2f} dB PSNR over {len(diffs)} scene(s) where it was used."
+    ]
+
+
+def view_synthesis_conclusions(s: SceneResult) -> list[str]:
     """sparself vs the best baseline at the held-out poses: all of them, then the interpolated and the
     extrapolated ones apart where the scene has both."""
-    out, v = [], s.get("view_synthesis", {})
+    out, v = [], s.synthesis.held_out
     for group, what in (
         (None, ""),
         (INTERPOLATED, " of interpolated frames"),
         (EXTRAPOLATED, " of extrapolated frames"),
     ):
         net, _ = mean_of(v.get(NETWORK), "psnr", group)
-        scored = {k: mean_of(e, "psnr", group)[0] for k, e in v.items() if k != NETWORK and "summary" in e}
+        scored = {k: mean_of(e, "psnr", group)[0] for k, e in v.items() if k != NETWORK and e.has_summary}
         base = {k: x for k, x in scored.items() if x is not None}
         if net is None or not base:
             continue
         best = max(base, key=lambda k: base[k])
         rel = "beats" if net > base[best] else "does not beat"
         out.append(
-            f"{s['name']}: view synthesis{what}: sparself ({net:.2f} dB) {rel} the best baseline, {best} "
+            f"{s.name}: view synthesis{what}: sparself ({net:.2f} dB) {rel} the best baseline, {best} "
             f"({base[best]:.2f} dB)."
         )
     return out

@@ -12,7 +12,9 @@ from sparself.synthesis.train_config import TrainConfig
 DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched here (no internet)"
 
 
-PLANNED_SECTIONS = ("midpoints", "extrapolations")  # results of the planned views that have a real photo
+PlannedSection = Literal["midpoints", "extrapolations"]
+# results of the planned views that have a real photo
+PLANNED_SECTIONS: tuple[PlannedSection, ...] = ("midpoints", "extrapolations")
 
 
 VALIDATION_EVERY = 5  # every 5th interior input view is held back to choose the synthetic-frame weight

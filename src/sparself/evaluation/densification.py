@@ -18,11 +18,14 @@ from sparself.evaluation.instruments import (
     with_images,
 )
 from sparself.evaluation.results import (
+    BASE,
     NETWORK,
     NETWORK_CHECKED,
     NETWORK_WEIGHTED,
+    ORACLE,
+    ReconResult,
+    RowError,
     SeededSets,
-    share_of_oracle_gain,
 )
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.weighting import choose_weight, validation_views, weighted_scene
@@ -50,76 +53,51 @@ def oracle_scene(ev: SceneEval) -> Scene:
 def densified_scenes(ev: SceneEval) -> list[tuple[str, int | None, Scene]]:
     """(key, network seed or None, scene) for every reconstruction: N alone, N + each seed's network
     views, N + each densify-baseline's views, and the oracle."""
-    runs: list[tuple[str, int | None, Scene]] = [("base", None, ev.inputs)]
+    runs: list[tuple[str, int | None, Scene]] = [(BASE, None, ev.inputs)]
     for seed, imgs in enumerate(ev.net_planned, start=ev.cfg.first_seed):
         runs.append((NETWORK, seed, with_images(ev.inputs, ev.planned, imgs)))
     for b in ev.cfg.densify_baselines:
         if b in ev.baseline_planned:
             runs.append((b, None, with_images(ev.inputs, ev.planned, ev.baseline_planned[b])))
     if ev.cfg.oracle and ev.split.kind == "dense" and ev.mid_truth:
-        runs.append(("oracle", None, oracle_scene(ev)))
+        runs.append((ORACLE, None, oracle_scene(ev)))
     return runs
 
 
-def oracle_share(entry: dict) -> None:
-    """The instrument check, then the share, of one reconstructor on one capture: more real photos must
-    not make it worse.
-
-    Sets ``instrument`` ("ok", or "failed: ..." when N + real photos (the oracle) does not beat N alone),
-    ``oracle_gain_db``, and ``oracle_share`` (``oracle_share_weighted`` for "N + sparself, weighted") only
-    when the instrument holds and the gain is measurable."""
-    if "oracle" not in entry or "base" not in entry:
-        return
-    b = entry["base"]["summary"]["psnr"]["mean"]
-    o = entry["oracle"]["summary"]["psnr"]["mean"]
-    entry["oracle_gain_db"] = float(o - b)
-    entry["instrument"] = (
-        "ok" if o > b else (f"failed: N + real photos {o:.2f} dB is not better than N alone {b:.2f} dB")
-    )
-    shares = (
-        (NETWORK, "oracle_share"),
-        (NETWORK_WEIGHTED, "oracle_share_weighted"),
-        (NETWORK_CHECKED, "oracle_share_checked"),
-    )
-    for key, share in shares:
-        if "summary" in entry.get(key, {}):
-            entry[share] = share_of_oracle_gain(b, entry[key]["summary"]["psnr"]["mean"], o)
-
-
-def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
+def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult) -> None:
     """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
-    (which keeps what was done if a fit fails)."""
-    net, base = SeededSets(), None
+    (which keeps what was done if a fit fails: the network's seeds fitted so far, unsummarised)."""
+    net, base = SeededSets(summarized=False), None
     for key, seed, sc in tqdm(
         densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
     ):
         renderer = fit(sc)
-        entry.setdefault("backend", getattr(renderer, "backend", None))
+        if not entry.fitted:
+            entry.fitted, entry.backend = True, getattr(renderer, "backend", None)
         imgs = render_targets(ev, renderer)
         label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
         scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
-        base = scored if key == "base" else base
+        base = scored if key == BASE else base
         if seed is None:
-            entry[key] = scored.to_json()
+            entry.rows[key] = scored
         else:
             net.per_seed.append(scored)
-            entry.setdefault(NETWORK, {"per_seed": []})["per_seed"].append(scored.to_json())
-    if net.per_seed:
-        entry[NETWORK] = net.to_json()
+            entry.rows.setdefault(NETWORK, net)
+    net.summarized = True
     if ev.cfg.weighted and ev.net_planned:
         try:
             weighted_fits(ev, rname, fit, entry)
         except Exception as e:  # the plain results stand without it
             log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
-            entry[NETWORK_WEIGHTED] = {"error": f"{type(e).__name__}: {e}"}
+            entry.rows[NETWORK_WEIGHTED] = RowError(f"{type(e).__name__}: {e}")
     if base is not None:
         try:
             checked_fits(ev, rname, fit, entry, base)
         except Exception as e:  # the other rows stand without it
             log.warning("%s: %s checked densification failed: %s", ev.name, rname, e)
-            entry[NETWORK_CHECKED] = {"error": f"{type(e).__name__}: {e}"}
-    oracle_share(entry)
-    entry["status"] = "ok"
+            entry.rows[NETWORK_CHECKED] = RowError(f"{type(e).__name__}: {e}")
+    entry.check_instrument()
+    entry.status = "ok"
 
 
 def render_targets(ev: SceneEval, renderer) -> np.ndarray:
@@ -127,35 +105,36 @@ def render_targets(ev: SceneEval, renderer) -> np.ndarray:
     return renders(renderer, ev.full, ev.targets)
 
 
-def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: dict) -> None:
+def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult) -> None:
     """'N + sparself, weighted': per seed, the inputs + its views (synthesized from all inputs) with their
     confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
     run's first seed (its network's views synthesized again without the held-back inputs)."""
     if ev.validation is None:
         ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synths[0])
     choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
-    choice["chosen_on_seed"] = ev.cfg.first_seed
-    sets, records = SeededSets(), []
+    choice.chosen_on_seed = ev.cfg.first_seed
+    sets = SeededSets()
     for k, seed in enumerate(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))):
-        sc = weighted_scene(ev.inputs, ev.planned, ev.net_planned[k], ev.net_conf[k], choice["weight"])
+        sc = weighted_scene(ev.inputs, ev.planned, ev.net_planned[k], ev.net_conf[k], choice.weight)
         label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
-        sets.per_seed.append(ev.score(render_targets(ev, fit(sc)), label, ev.scored, seed=seed, views=len(sc)))
-        records.append({**sets.per_seed[-1].to_json(), "selection": choice})
-    entry[NETWORK_WEIGHTED] = {**sets.to_json(), "per_seed": records}
+        scored = ev.score(render_targets(ev, fit(sc)), label, ev.scored, seed=seed, views=len(sc))
+        scored.decision = choice
+        sets.per_seed.append(scored)
+    entry.rows[NETWORK_WEIGHTED] = sets
 
 
 def densification(ev: SceneEval, reconstructors: dict[str, Callable[[Scene], Renderer]] | None) -> None:
     """Each reconstructor from N views vs N + synthesized views vs the oracle; a failure is recorded."""
     recs = reconstructors if reconstructors is not None else {}
-    dens: dict = {}
-    ev.res["densification"] = dens
+    dens: dict[str, ReconResult] = {}
+    ev.result.densification = dens
     for rname in ev.cfg.reconstructors if reconstructors is None else list(recs):
         t0 = time.perf_counter()
-        entry = dens[rname] = {}
+        entry = dens[rname] = ReconResult()
         try:
             reconstruct(ev, rname, recs[rname] if rname in recs else reconstructor(rname, ev.cfg), entry)
         except Exception as e:
             log.warning("%s: reconstructor %s failed: %s", ev.name, rname, e)
-            entry.update(status="failed", error=f"{type(e).__name__}: {e}")
-        entry["seconds"] = time.perf_counter() - t0
+            entry.status, entry.error = "failed", f"{type(e).__name__}: {e}"
+        entry.seconds = time.perf_counter() - t0
         ev.partial()

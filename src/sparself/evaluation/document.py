@@ -7,6 +7,7 @@ import html
 import numpy as np
 
 from sparself.evaluation.results import finite
+from sparself.evaluation.results_file import Settings
 
 
 class Doc:
@@ -80,8 +81,8 @@ class Doc:
         return "\n".join(out)
 
 
-def lpips_available(results: dict) -> bool:
-    return str(results.get("settings", {}).get("lpips_status", "")).startswith("available")
+def lpips_available(settings: Settings) -> bool:
+    return str(settings.option("lpips_status", "")).startswith("available")
 
 
 def fmt(metric: str, value, std=None, *, lpips_ok: bool = True) -> str:

@@ -11,7 +11,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
 from tqdm.auto import tqdm
 
 from sparself.capture.io import read_scene
@@ -23,25 +22,12 @@ from sparself.evaluation.config import DIETNERF_NOTE, EvalConfig, eval_config
 from sparself.evaluation.instruments import versions
 from sparself.evaluation.protocol import evaluate_scene, name_from_source, run_name, scene_name
 from sparself.evaluation.report import write_report
+from sparself.evaluation.results_file import Results, Settings
+from sparself.evaluation.scene_results import SceneFailure
 from sparself.evaluation.split import make_split
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
-
-
-# ---- the split -------------------------------------------------------------------------------------
-
-
-# ---- helpers ---------------------------------------------------------------------------------------
-
-
-# ---- synthesizers and reconstructors ---------------------------------------------------------------
-
-
-# ---- one scene -------------------------------------------------------------------------------------
-
-
-# ---- many scenes -----------------------------------------------------------------------------------
 
 
 def read_capture_list(path: Path) -> list[Path]:
@@ -60,10 +46,10 @@ def read_capture_list(path: Path) -> list[Path]:
     return out
 
 
-def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Path | None = None, **hooks) -> dict:
+def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Path | None = None, **hooks) -> Results:
     """Evaluate every scene (paths are read with sparself.capture.io.read_scene); failures are recorded.
 
-    Returns {"settings", "scenes": [...], "not_run": {...}}. hooks are passed to :func:`evaluate_scene`.
+    Returns the settings, what was not run, and a record per run. hooks are passed to :func:`evaluate_scene`.
     """
     cfg.validate()
     try:
@@ -72,19 +58,16 @@ def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Pat
         gs_ok, gs_why = gs_available()
     except Exception as e:
         gs_ok, gs_why = False, str(e)
-    results: dict = {
-        "settings": {
-            **dataclasses.asdict(cfg),
-            "versions": versions(),
-            "lpips_status": metrics.lpips_status() if cfg.lpips else "unavailable: disabled by settings",
-        },
-        "not_run": {"dietnerf": DIETNERF_NOTE},
-        "scenes": [],
+    settings = {
+        **dataclasses.asdict(cfg),
+        "versions": versions(),
+        "lpips_status": metrics.lpips_status() if cfg.lpips else "unavailable: disabled by settings",
     }
+    results = Results(Settings(settings), {"dietnerf": DIETNERF_NOTE})
     if not gs_ok:
-        results["not_run"]["gsplat"] = f"not run: {gs_why}"
+        results.not_run["gsplat"] = f"not run: {gs_why}"
     if hooks.get("reconstructors") is not None:
-        results["settings"]["reconstructors"] = list(hooks["reconstructors"])
+        settings["reconstructors"] = list(hooks["reconstructors"])
     if not gs_ok and "gsplat" in cfg.reconstructors:
         cfg = replace(cfg, reconstructors=tuple(r for r in cfg.reconstructors if r != "gsplat"))
     for item in tqdm(list(scenes), desc="scenes", disable=not cfg.progress):
@@ -92,20 +75,20 @@ def run_evaluation(scenes: Sequence[Scene | Path], cfg: EvalConfig, out_dir: Pat
         try:
             scene = item if isinstance(item, Scene) else read_scene(Path(item))
         except Exception as e:
-            results["scenes"].append(_failed(label, e, cfg))
+            results.scenes.append(_failed(label, e, cfg))
             continue
         ns = sweep(scene, cfg)
         for n in ns:
             try:
                 res = evaluate_scene(scene, cfg, out_dir, n_inputs=n, **hooks)
                 if len(ns) < len(cfg.inputs):
-                    res["notes"].append(
+                    res.notes.append(
                         f"run once for N = {', '.join(map(str, cfg.inputs))}: a capture too small for the dense "
                         "protocol has every frame not held out as its inputs, whatever N"
                     )
-                results["scenes"].append(res)
+                results.scenes.append(res)
             except Exception as e:
-                results["scenes"].append(_failed(label, e, cfg, n))
+                results.scenes.append(_failed(label, e, cfg, n))
     return results
 
 
@@ -118,47 +101,32 @@ def sweep(scene: Scene, cfg: EvalConfig) -> list[int]:
     return list(cfg.inputs)
 
 
-def _failed(label: str, e: Exception, cfg: EvalConfig, n_inputs: int | None = None) -> dict:
+def _failed(label: str, e: Exception, cfg: EvalConfig, n_inputs: int | None = None) -> SceneFailure:
     """The record of a run that failed (the others go on)."""
     log.error("%s: evaluation failed: %s", label, e)
     capture = name_from_source(label)
-    return {
-        "name": capture if n_inputs is None else run_name(capture, cfg, n_inputs),
-        "capture": capture,
-        "inputs_n": n_inputs,
-        "source": label,
-        "status": "failed",
-        "error": f"{type(e).__name__}: {e}",
-        "traceback": traceback.format_exc(limit=5),
-    }
+    return SceneFailure(
+        capture if n_inputs is None else run_name(capture, cfg, n_inputs),
+        label,
+        f"{type(e).__name__}: {e}",
+        capture,
+        n_inputs,
+        traceback.format_exc(limit=5),
+    )
 
 
 def evaluate(
     scenes: Sequence[Scene | Path], out: Path, cfg: EvalConfig | None = None, *, overwrite: bool = False, **hooks
-) -> dict:
+) -> Results:
     """Run the protocol and write ``results.json``, ``report.md``, ``report.html`` and figures to ``out``
     (atomically: nothing is left there if it fails). Returns the results."""
     cfg = cfg or EvalConfig()
     cfg.validate()
     with atomic_dir(Path(out), overwrite, evaluation_inputs(scenes)) as tmp:
         results = run_evaluation(scenes, cfg, tmp, **hooks)
-        (tmp / "results.json").write_text(json.dumps(_jsonable(results), indent=1, allow_nan=True))
+        (tmp / "results.json").write_text(json.dumps(results.to_json(), indent=1, allow_nan=True))
         write_report(results, tmp)
     return results
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, Path):
-        return str(x)
-    return x
 
 
 def run_cli(
@@ -170,7 +138,7 @@ def run_cli(
     overwrite: bool = False,
     train_cfg: TrainConfig | None = None,
     **given,
-) -> dict:
+) -> Results:
     """What ``sparself evaluate`` does: gather scenes (arguments + manifest) and call :func:`evaluate`.
 
     given: :class:`EvalConfig` fields set on the command line; the others keep the defaults of

@@ -41,8 +41,8 @@ The validation fits' synthesized views are synthesized again by that seed's netw
 the held-back ones (:func:`validation_views`), so their pixels carry none of the held-back photos; the
 network itself was still trained on all inputs (retraining per choice would be too slow).
 
-Results: a JSON-able dict (per frame, per scene, mean/std, every setting and versions). A scene that
-fails is recorded with its error and the others go on.
+Results: a :class:`~sparself.evaluation.scene_results.SceneResult` (per frame, per scene, mean/std); a
+scene that fails is recorded with its error and the others go on (:mod:`sparself.evaluation.evaluate`).
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ from sparself.capture.scene import MIN_POINTS, Frame, Scene, preloaded
 from sparself.capture.triangulate import triangulate, with_points
 from sparself.core.errors import InputError, SparselfError
 from sparself.core.geometry import rotation_angle_deg
-from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig
+from sparself.evaluation.config import PLANNED_SECTIONS, EvalConfig, PlannedSection
 from sparself.evaluation.densification import densification
 from sparself.evaluation.instruments import (
     SynthFn,
@@ -74,10 +74,12 @@ from sparself.evaluation.results import (
     EXTRAPOLATED,
     INTERPOLATED,
     NETWORK,
+    RowError,
     ScoredSet,
     SeededSets,
 )
 from sparself.evaluation.scene_eval import SceneEval, pose_only
+from sparself.evaluation.scene_results import CameraFrames, InputPoints, PlannedPose, SceneResult, SplitInfo
 from sparself.evaluation.split import HeldOutSplit, make_split
 from sparself.recon import Renderer
 from sparself.synthesis.plan import PlanConfig, plan_poses
@@ -102,23 +104,20 @@ def snap(index: float, split: HeldOutSplit) -> int | None:
     return min(cands, key=lambda i: (abs(i - index), i)) if cands else None
 
 
-def plan(inputs: Scene, split: HeldOutSplit, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[dict]]:
+def plan(inputs: Scene, split: HeldOutSplit, cfg: EvalConfig, full: Scene) -> tuple[list[Frame], list[PlannedPose]]:
     """Planned novel frames (pose only) and how each relates to a real photo (dense: snapped midpoints and
     extrapolations)."""
     planned = plan_poses(inputs, PlanConfig(n_mid=cfg.n_mid, n_extra=cfg.n_extra, order="capture"))
-    info: list[dict] = []
+    info: list[PlannedPose] = []
     out: list[Frame] = []
     for f in planned:
-        rec = {"name": f.name, "planned_index": f.index, "group": split.group(f.index), "truth": None}
+        rec = PlannedPose(f.name, f.index, split.group(f.index))
         j = snap(f.index, split)
         if j is not None:
             real = full.frames[j]
-            rec.update(
-                truth=j,
-                truth_name=real.name,
-                snap_move=float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale()),
-                snap_turn_deg=float(rotation_angle_deg(real.pose.R, f.pose.R)),
-            )
+            rec.truth, rec.truth_name = j, real.name
+            rec.snap_move = float(np.linalg.norm(real.pose.center - f.pose.center) / full.scale())
+            rec.snap_turn_deg = float(rotation_angle_deg(real.pose.R, f.pose.R))
             f = pose_only(real, name=f"novel_at_{real.name}", synthetic=True)
         out.append(f)
         info.append(rec)
@@ -149,8 +148,8 @@ def sorted_resized(scene: Scene, cfg: EvalConfig) -> Scene:
     return replace(full, frames=[replace(f, index=float(k)) for k, f in enumerate(full.frames)])
 
 
-def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig, res: dict) -> Scene:
-    """``full`` with its sparse points set by ``cfg.points``, recorded in ``res["input_points"]``.
+def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig, res: SceneResult) -> Scene:
+    """``full`` with its sparse points set by ``cfg.points``, recorded in ``res.input_points``.
 
     "inputs": triangulated from the photos of frames ``inputs`` alone (at their original ``cameras``, up to
     800 px), never a held-out one; fewer than MIN_POINTS are dropped (the reconstructors then fall back as on a
@@ -158,19 +157,12 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
     ``ev.inputs`` inherits these points, and every row of the scene (N, N + sparself, weighted, densify
     baselines, oracle) fits on ``ev.inputs`` plus frames, so all rows share the same points."""
     if cfg.points == "capture":
-        res["input_points"] = {"source": "capture", "points": 0 if full.points is None else len(full.points)}
+        res.input_points = InputPoints("capture", 0 if full.points is None else len(full.points))
         return full
     tri = triangulate(replace(full.subset(inputs), cameras=cameras))
-    res["input_points"] = {
-        "source": "inputs",
-        "points": len(tri.points),
-        "views": tri.views,
-        "pairs": tri.pairs,
-        "matches": tri.matches,
-        "seconds": tri.seconds,
-    }
+    res.input_points = InputPoints("inputs", len(tri.points), tri.views, tri.pairs, tri.matches, tri.seconds)
     if len(tri.points) < MIN_POINTS:
-        res["notes"].append(
+        res.notes.append(
             f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
             "the reconstructors start without sparse points"
         )
@@ -178,28 +170,28 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
     return with_points(full, tri)
 
 
-def protocol(ev: SceneEval, plan_info: list[dict]) -> dict:
+def protocol(ev: SceneEval, plan_info: list[PlannedPose]) -> SplitInfo:
     """What the report says about the split, and the cameras for its plot."""
     full, split = ev.full, ev.split
-    return {
-        "kind": split.kind,
-        "rule": split.rule,
-        "n_frames": len(full),
-        "held_out": [full.frames[i].name for i in split.eval],
-        "held_out_index": split.eval,
-        "scored": [full.frames[i].name for i in ev.scored],
-        "inputs": [full.frames[i].name for i in split.inputs],
-        "inputs_index": split.inputs,
-        "extrapolated": [full.frames[i].name for i in ev.scored if split.group(i) == EXTRAPOLATED],
-        "margin": [full.frames[i].name for i in split.margin],
-        "image_size": list(full.image_size(0)),
-        "planned": plan_info,
-        "camera_frames": {
-            "inputs": [f.pose.as_vector().tolist() for f in ev.inputs.frames],
-            "held_out": [f.pose.as_vector().tolist() for f in ev.targets],
-            "planned": [f.pose.as_vector().tolist() for f in ev.planned],
-        },
-    }
+    return SplitInfo(
+        kind=split.kind,
+        rule=split.rule,
+        n_frames=len(full),
+        held_out=[full.frames[i].name for i in split.eval],
+        held_out_index=split.eval,
+        scored=[full.frames[i].name for i in ev.scored],
+        inputs=[full.frames[i].name for i in split.inputs],
+        inputs_index=split.inputs,
+        extrapolated=[full.frames[i].name for i in ev.scored if split.group(i) == EXTRAPOLATED],
+        margin=[full.frames[i].name for i in split.margin],
+        image_size=list(full.image_size(0)),
+        planned=plan_info,
+        camera_frames=CameraFrames(
+            [f.pose.as_vector().tolist() for f in ev.inputs.frames],
+            [f.pose.as_vector().tolist() for f in ev.targets],
+            [f.pose.as_vector().tolist() for f in ev.planned],
+        ),
+    )
 
 
 def run_name(capture: str, cfg: EvalConfig, n_inputs: int) -> str:
@@ -213,15 +205,7 @@ def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None, n_inputs: i
     n_inputs = n_inputs or max(cfg.inputs)
     capture = scene_name(scene)
     name = run_name(capture, cfg, n_inputs)
-    res: dict = {
-        "name": name,
-        "capture": capture,
-        "inputs_n": n_inputs,
-        "source": str(scene.source) if scene.source else None,
-        "status": "running",
-        "notes": [],
-        "timings": {},
-    }
+    res = SceneResult(name, capture, n_inputs, str(scene.source) if scene.source else None)
     full = sorted_resized(scene, cfg)
     split = make_split(len(full), cfg, n_inputs)
     if len(split.eval) == 0:
@@ -232,25 +216,29 @@ def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None, n_inputs: i
         scored = [scored[p] for p in np.round(np.linspace(0, len(scored) - 1, cfg.max_eval)).astype(int)]
     inputs = preloaded(full.subset(split.inputs))
     planned, plan_info = plan(inputs, split, cfg, full)
-    mid_truth = {k: rec["truth"] for k, rec in enumerate(plan_info) if rec["truth"] is not None}
+    mid_truth = {k: rec.truth for k, rec in enumerate(plan_info) if rec.truth is not None}
     ev = SceneEval(name, cfg, full, split, scored, inputs, planned, mid_truth, res, out_dir)
-    res["protocol"] = protocol(ev, plan_info)
+    res.split = protocol(ev, plan_info)
     if out_dir is not None and cfg.examples > 0:
         ev.ex_dir = Path(out_dir) / "examples" / _safe(name)
         ev.ex_dir.mkdir(parents=True, exist_ok=True)
         camera_plot(inputs, planned, [pose_only(full.frames[i]) for i in split.eval], ev.ex_dir / "cameras.png", name)
-        res["camera_plot"] = str((ev.ex_dir / "cameras.png").relative_to(out_dir))
-    res["examples"] = {}
+        res.camera_plot = str((ev.ex_dir / "cameras.png").relative_to(out_dir))
     return ev
 
 
-def planned_scores(ev: SceneEval, images: np.ndarray, label: str, seed: int | None = None) -> dict[str, ScoredSet]:
+def planned_scores(
+    ev: SceneEval, images: np.ndarray, label: str, seed: int | None = None
+) -> dict[PlannedSection, ScoredSet]:
     """The planned views that have a real photo at their pose, scored: {"midpoints": ..., "extrapolations":
     ...} (a set only where it has frames)."""
     if not ev.mid_truth:
         return {}
     scored = ev.score(images[list(ev.mid_truth)], label, ev.mid_targets, held_out=False, seed=seed)
-    sets = {"midpoints": scored.only(INTERPOLATED), "extrapolations": scored.only(EXTRAPOLATED)}
+    sets: dict[PlannedSection, ScoredSet] = {
+        "midpoints": scored.only(INTERPOLATED),
+        "extrapolations": scored.only(EXTRAPOLATED),
+    }
     return {k: v for k, v in sets.items() if v.frames}
 
 
@@ -261,9 +249,9 @@ def network_synthesis(ev: SceneEval, network: Callable[[Scene, int], SynthFn] | 
         try:
             network = network_factory(ev.cfg)
         except SparselfError as e:
-            ev.res["notes"].append(str(e))
+            ev.result.notes.append(str(e))
             return
-    held, planned = SeededSets(), {k: SeededSets() for k in PLANNED_SECTIONS}
+    held, planned = SeededSets(), {sec: SeededSets() for sec in PLANNED_SECTIONS}
     first = ev.cfg.first_seed
     for seed in tqdm(
         range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False
@@ -278,28 +266,29 @@ def network_synthesis(ev: SceneEval, network: Callable[[Scene, int], SynthFn] | 
         ev.net_conf.append(conf)
         for sec, scored in planned_scores(ev, imgs, NETWORK, seed).items():
             planned[sec].per_seed.append(scored)
-    ev.res["view_synthesis"][NETWORK] = held.to_json()
+    vs = ev.result.synthesis
+    vs.held_out[NETWORK] = held
     for sec, sets in planned.items():
         if sets.per_seed:
-            ev.res[sec][NETWORK] = sets.to_json()
+            vs.planned(sec)[NETWORK] = sets
 
 
 def baseline_synthesis(ev: SceneEval, baselines: dict[str, SynthFn]) -> None:
     """Each baseline at the held-out poses and the planned poses with a real photo (and the planned poses
     it densifies)."""
-    vs = ev.res["view_synthesis"]
+    vs = ev.result.synthesis
     for bname, fn in tqdm(
         list(baselines.items()), desc=f"{ev.name}: baselines", disable=not ev.cfg.progress, leave=False
     ):
         try:
-            vs[bname] = ev.score(fn(ev.inputs, ev.targets), bname, ev.scored).to_json()
+            vs.held_out[bname] = ev.score(fn(ev.inputs, ev.targets), bname, ev.scored)
             if bname in ev.cfg.densify_baselines or ev.mid_truth:
                 ev.baseline_planned[bname] = fn(ev.inputs, ev.planned)
                 for sec, scored in planned_scores(ev, ev.baseline_planned[bname], bname).items():
-                    ev.res[sec][bname] = scored.to_json()
+                    vs.planned(sec)[bname] = scored
         except Exception as e:  # one broken baseline must not hide the others
             log.warning("%s: baseline %s failed: %s", ev.name, bname, e)
-            vs[bname] = {"error": f"{type(e).__name__}: {e}"}
+            vs.held_out[bname] = RowError(f"{type(e).__name__}: {e}")
 
 
 def evaluate_scene(
@@ -310,11 +299,11 @@ def evaluate_scene(
     network: Callable[[Scene, int], SynthFn] | None = None,
     reconstructors: dict[str, Callable[[Scene], Renderer]] | None = None,
     baselines: dict[str, SynthFn] | None = None,
-    on_partial: Callable[[dict], None] | None = None,
+    on_partial: Callable[[SceneResult], None] | None = None,
     n_inputs: int | None = None,
-) -> dict:
+) -> SceneResult:
     """Run the protocol on one scene with ``n_inputs`` inputs (one of ``cfg.inputs``; None: the largest).
-    Returns the scene's results (JSON-able).
+    Returns the scene's results.
 
     network: ``make(inputs_scene, seed) -> synthesize`` (default: :func:`network_factory`); None when
     unavailable is recorded. ``synthesize(sources, targets)`` gets the inputs as sources, and for the
@@ -327,20 +316,19 @@ def evaluate_scene(
     t_start = time.perf_counter()
     ev = start_scene(scene, cfg, out_dir, n_inputs)
     ev.on_partial = on_partial
-    ev.res["view_synthesis"] = {}
-    ev.res.update({sec: {} for sec in PLANNED_SECTIONS})
+    res = ev.result
     t0 = time.perf_counter()
     network_synthesis(ev, network)
-    ev.res["timings"]["network"] = time.perf_counter() - t0
+    res.timings.network = time.perf_counter() - t0
     ev.partial()
     t0 = time.perf_counter()
     baseline_synthesis(ev, baselines if baselines is not None else baseline_fns(cfg.baselines))
-    ev.res["timings"]["baselines"] = time.perf_counter() - t0
+    res.timings.baselines = time.perf_counter() - t0
     ev.partial()
     densification(ev, reconstructors)
-    ev.res["status"] = "ok"
-    ev.res["timings"]["total"] = time.perf_counter() - t_start
-    return ev.res
+    res.status = "ok"
+    res.timings.total = time.perf_counter() - t_start
+    return res
 
 
 def camera_plot(inputs: Scene, planned: list[Frame], held: list[Frame], path: Path, name: str) -> None:

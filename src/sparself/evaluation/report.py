@@ -15,6 +15,7 @@ from pathlib import Path
 
 from sparself.evaluation.batch_report import batch_section
 from sparself.evaluation.conclusions import conclusions
+from sparself.evaluation.config import PlannedSection
 from sparself.evaluation.document import UNAVAILABLE, Doc, avg, change, fmt, lpips_available
 from sparself.evaluation.figures import bar_chart, image_grid, sweep_plot
 from sparself.evaluation.report_context import (
@@ -29,12 +30,19 @@ from sparself.evaluation.report_context import (
     share_cell,
 )
 from sparself.evaluation.results import (
+    BASE,
     NETWORK,
     NETWORK_CHECKED,
     NETWORK_FIXED,
     NETWORK_WEIGHTED,
+    ORACLE,
+    ReconResult,
+    SeededSets,
+    WeightChoice,
     mean_of,
 )
+from sparself.evaluation.results_file import Results
+from sparself.evaluation.scene_results import SceneFailure
 from sparself.evaluation.verdict import (
     CANNOT_TELL,
     DOES_NOT_HELP,
@@ -48,23 +56,14 @@ from sparself.evaluation.verdict import (
 log = logging.getLogger(__name__)
 
 
-def write_report(results: dict, out_dir: Path) -> tuple[Path, Path]:
+def write_report(results: Results, out_dir: Path) -> tuple[Path, Path]:
     """Write ``report.md``, ``report.html`` and figures (``figures/*.png``) into ``out_dir``."""
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
-    scenes_all = results.get("scenes", [])
-    ok = [s for s in scenes_all if s.get("status") == "ok"]
-    c = Ctx(
-        results,
-        ok,
-        [s for s in scenes_all if s.get("status") != "ok"],
-        recon_names(ok),
-        lpips_available(results),
-        out_dir,
-        fig_dir,
-    )
-    doc = Doc(None if c.lp else str(results.get("settings", {}).get("lpips_status") or UNAVAILABLE))
+    ok = results.ok
+    c = Ctx(results, ok, results.failed, recon_names(ok), lpips_available(results.settings), out_dir, fig_dir)
+    doc = Doc(None if c.lp else str(results.settings.lpips_status or UNAVAILABLE))
     doc.h(1, "sparself evaluation report")
     for section in (
         _verdict_section,
@@ -122,42 +121,45 @@ def _protocol_section(doc: Doc, c: Ctx) -> None:
     )
     doc.ul(
         [
-            f"Dense captures: every {settings.get('holdout_every', 8)}th interior frame is held out (LLFF-style, "
+            f"Dense captures: every {settings.holdout_every}th interior frame is held out (LLFF-style, "
             f"first and last frames excluded); an extrapolation margin of frames is kept beyond each end (auto: one "
-            f"input spacing, at least {settings.get('holdout_every', 8) + 1} frames; never inputs) and "
-            f"N = {_inputs_text(settings.get('inputs', 25))} evenly spaced frames of the rest "
+            f"input spacing, at least {settings.holdout_every + 1} frames; never inputs) and "
+            f"N = {_inputs_text(settings.inputs)} evenly spaced frames of the rest "
             f"between the margins are the sparse input. "
             "Planned midpoints are snapped to the real (non-held-out) photo nearest the planned pose in their gap, "
             "planned extrapolations to the nearest one in the margin beyond their end input: the ground truth for "
             "view synthesis at planned poses and the oracle's training images. Held-out frames in the margins are "
             "scored as extrapolated views, apart from the interpolated ones (rows 'extrapolated' / 'interpolated').",
             f"Sparse captures (too few frames for the above, e.g. 16-view Middlebury rings): every "
-            f"{settings.get('sparse_holdout_every', 2)}nd interior frame, from the second on, "
+            f"{settings.sparse_holdout_every}nd interior frame, from the second on, "
             f"is held out and the rest are "
             "the inputs. No oracle is run there (the only real frames between inputs are the held-out ones), and "
             "the planned midpoints lie near held-out poses: the N + synth reconstruction gets synthesized (never "
             "real) views close to the poses it is scored at.",
-            f"Densification: each reconstructor is fitted on the N inputs and on N + {settings.get('n_mid', 8)} "
-            f"midpoints + {settings.get('n_extra', 2)} extrapolations synthesized by sparself (per seed) and by the "
+            f"Densification: each reconstructor is fitted on the N inputs and on N + {settings.n_mid} "
+            f"midpoints + {settings.n_extra} extrapolations synthesized by sparself (per seed) and by the "
             "densify baselines; all render the held-out poses.",
             "Oracle: the same reconstruction with the real photos at the snapped planned poses (a planned pose "
             "without a real photo, e.g. an extrapolation with no margin, keeps sparself's seed-0 view). "
             "Share of oracle gain = "
             "(PSNR(N+synth) − PSNR(N)) / (PSNR(oracle) − PSNR(N)).",
-            f"sparself numbers are mean ± std over {settings.get('seeds', 3)} network seed(s) of the per-scene means.",
-            _points_line(settings.get("points", "capture")),
+            f"sparself numbers are mean ± std over {settings.seeds} network seed(s) of the per-scene means.",
+            _points_line(settings.points),
         ]
     )
     for s in c.ok:
-        pts = s.get("input_points")
-        pts = f"; sparse points: {pts['points']} (from the {pts['source']})" if pts else ""
+        pts = (
+            ""
+            if s.input_points is None
+            else f"; sparse points: {s.input_points.points} (from the {s.input_points.source})"
+        )
         doc.p(
-            f"{s['name']}: {s['protocol']['rule']}. Held out: {', '.join(s['protocol']['held_out'])}; "
-            f"scored: {len(s['protocol']['scored'])}; inputs: {', '.join(s['protocol']['inputs'])}{pts}."
+            f"{s.name}: {s.split.rule}. Held out: {', '.join(s.split.held_out)}; "
+            f"scored: {len(s.split.scored)}; inputs: {', '.join(s.split.inputs)}{pts}."
         )
 
 
-def _inputs_text(inputs) -> str:
+def _inputs_text(inputs: int | list[int]) -> str:
     """N as the settings record it: one number (results before the sweep) or a list of them."""
     if isinstance(inputs, (list, tuple)):
         more = " (one run, the same held-out frames and margins for every N)" if len(inputs) > 1 else ""
@@ -182,15 +184,15 @@ def _points_line(points: str) -> str:
 
 def _not_run_section(doc: Doc, c: Ctx) -> None:
     doc.h(2, "Not run")
-    nr = dict(c.results.get("not_run", {}))
+    nr = dict(c.results.not_run)
     nr.setdefault("dietnerf", "not run: needs CLIP weights that cannot be fetched here")
     items = [f"{k}: {v}" for k, v in nr.items()]
-    items.append(f"LPIPS: {c.settings.get('lpips_status', 'unavailable')}")
+    items.append(f"LPIPS: {c.settings.option('lpips_status', 'unavailable')}")
     for s in c.ok:
-        items += [f"{s['name']}: {n}" for n in s.get("notes", [])]
-        for r, d in s.get("densification", {}).items():
-            if d.get("status") == "failed":
-                items.append(f"{s['name']} / {r}: failed: {d.get('error')}")
+        items += [f"{s.name}: {n}" for n in s.notes]
+        for r, d in s.densification.items():
+            if d.status == "failed":
+                items.append(f"{s.name} / {r}: failed: {d.error}")
     doc.ul(items)
 
 
@@ -205,12 +207,11 @@ def _densification_tables(doc: Doc, c: Ctx) -> None:
         rows: list[list[str]] = []
         cols: dict[str | None, list[tuple[list, list]]] = {}  # group -> per reconstructor (N, N + synth) values
         for s in c.ok:
-            for label, g in group_rows(s, s["name"]):
+            for label, g in group_rows(s, s.name):
                 row, gcols = [label], cols.setdefault(g, [([], []) for _ in c.recons])
                 for r, col in zip(c.recons, gcols):
-                    d = s["densification"].get(r, {})
-                    a, _ = mean_of(d.get("base"), metric, g)
-                    b, sd = mean_of(d.get(NETWORK), metric, g)
+                    a, _ = mean_of(s.row(r, BASE), metric, g)
+                    b, sd = mean_of(s.row(r, NETWORK), metric, g)
                     col[0].append(a)
                     col[1].append(b)
                     row += [fmt(metric, a, lpips_ok=lp), fmt(metric, b, sd, lpips_ok=lp), change(a, b, metric, lp)]
@@ -228,52 +229,42 @@ def _densification_tables(doc: Doc, c: Ctx) -> None:
 def _recon_comparisons(doc: Doc, c: Ctx) -> None:
     """Per reconstructor: N alone, N + sparself, N + each baseline, the oracle, and the oracle share."""
     names = {
-        "base": "N only",
+        BASE: "N only",
         NETWORK: "N + sparself",
         NETWORK_WEIGHTED: "N + sparself, weighted",
         NETWORK_CHECKED: "N + sparself, checked (what densify writes)",
         NETWORK_FIXED: "fixer's views (not a fit)",
-        "oracle": "N + real (oracle)",
+        ORACLE: "N + real (oracle)",
     }
     for r in c.recons:
         doc.h(3, f"{r}: sparself vs baselines vs oracle (densification)")
-        backends = sorted(
-            {str(s["densification"][r]["backend"]) for s in c.ok if s["densification"].get(r, {}).get("backend")}
-        )
+        ran = [s.densification[r] for s in c.ok if r in s.densification]
+        backends = sorted({str(d.backend) for d in ran if d.backend})
         if backends:
             doc.p(f"{r} ran on: {', '.join(backends)}.")
         keys = []
-        for s in c.ok:
-            for k in s["densification"].get(r, {}):
-                if (
-                    k not in keys
-                    and isinstance(s["densification"][r][k], dict)
-                    and "summary" in s["densification"][r][k]
-                ):
-                    keys.append(k)
-        first = ["base", NETWORK, NETWORK_WEIGHTED, NETWORK_CHECKED]
-        order = first + [k for k in keys if k not in first + ["oracle"]] + ["oracle"]
+        for d in ran:
+            keys += [k for k, row in d.rows.items() if k not in keys and row.has_summary]
+        first = [BASE, NETWORK, NETWORK_WEIGHTED, NETWORK_CHECKED]
+        order = first + [k for k in keys if k not in first + [ORACLE]] + [ORACLE]
         order = [k for k in order if k in keys]
-        shares = [("oracle_share", NETWORK, "share of oracle gain")] + [
-            (key, row, f"share of oracle gain ({what})")
-            for key, row, what in (
-                ("oracle_share_weighted", NETWORK_WEIGHTED, "weighted"),
-                ("oracle_share_checked", NETWORK_CHECKED, "checked"),
-            )
+        shares = [(NETWORK, "share of oracle gain")] + [
+            (row, f"share of oracle gain ({what})")
+            for row, what in ((NETWORK_WEIGHTED, "weighted"), (NETWORK_CHECKED, "checked"))
             if row in order
         ]
         for metric, mlabel in c.metrics:
             header = (
                 ["Scene"]
                 + [names.get(k, f"N + {k}") for k in order]
-                + ([h for _, _, h in shares] if metric == "psnr" else [])
+                + ([h for _, h in shares] if metric == "psnr" else [])
             )
             rows = []
             for s in c.ok:
-                d = s["densification"].get(r, {})
+                d = s.densification.get(r, ReconResult())
                 for label, g in group_rows(s, scene_label(s, r)):
-                    row = [label] + [fmt(metric, *mean_of(d.get(k), metric, g), lpips_ok=c.lp) for k in order]
-                    cells = [share_cell(d, k) if g is None else group_share_cell(d, g, net) for k, net, _ in shares]
+                    row = [label] + [fmt(metric, *mean_of(d.row(k), metric, g), lpips_ok=c.lp) for k in order]
+                    cells = [share_cell(d, net) if g is None else group_share_cell(d, g, net) for net, _ in shares]
                     rows.append(row + (cells if metric == "psnr" else []))
             doc.p(mlabel)
             doc.table(header, rows)
@@ -285,18 +276,19 @@ def _weight_choices(doc: Doc, c: Ctx, r: str) -> None:
     PSNR of each tried weight on the held-back input views (never on held-out photos)."""
     items, older = [], False
     for s in c.ok:
-        for p in s["densification"].get(r, {}).get(NETWORK_WEIGHTED, {}).get("per_seed", []):
-            sel = p.get("selection") or {}
-            if "weight" in sel:
-                tried = ", ".join(f"{w}: {v:.2f} dB" for w, v in sel.get("validation_psnr", {}).items())
-                conf = "confidence maps x " if sel.get("confidence") else "no confidence maps; "
-                srcs = sel.get("validation_sources")
+        weighted = s.row(r, NETWORK_WEIGHTED)
+        for p in weighted.per_seed if isinstance(weighted, SeededSets) else []:
+            sel = p.decision
+            if isinstance(sel, WeightChoice):
+                tried = ", ".join(f"{w}: {v:.2f} dB" for w, v in sel.validation_psnr.items())
+                conf = "confidence maps x " if sel.confidence else "no confidence maps; "
+                srcs = sel.validation_sources
                 older |= srcs is None  # results from before the validation views were synthesized apart
                 made = f"; views synthesized from {len(srcs)} inputs without them" if srcs is not None else ""
                 items.append(
-                    f"{s['name']} seed {p.get('seed')}: {conf}synthetic-frame weight {sel['weight']} "
-                    f"(chosen on seed {sel.get('chosen_on_seed')}; PSNR on held-back inputs "
-                    f"{', '.join(sel.get('validation_views', []))}{made}: {tried})"
+                    f"{s.name} seed {p.seed}: {conf}synthetic-frame weight {sel.weight} "
+                    f"(chosen on seed {sel.chosen_on_seed}; PSNR on held-back inputs "
+                    f"{', '.join(sel.validation_views)}{made}: {tried})"
                 )
     if items:
         how = (
@@ -315,7 +307,7 @@ def _weight_choices(doc: Doc, c: Ctx, r: str) -> None:
         doc.ul(items)
 
 
-PLANNED_TABLES = (
+PLANNED_TABLES: tuple[tuple[PlannedSection, str], ...] = (
     ("midpoints", "View synthesis at midpoint poses (real photos between inputs; dense captures only)"),
     (
         "extrapolations",
@@ -332,10 +324,10 @@ def _view_synthesis_tables(doc: Doc, c: Ctx) -> None:
         rows: list[list[str]] = []
         cols: dict[str | None, list[list]] = {}  # group -> per method its values
         for s in c.ok:
-            for label, g in group_rows(s, s["name"]):
+            for label, g in group_rows(s, s.name):
                 row, gcols = [label], cols.setdefault(g, [[] for _ in methods])
                 for m, col in zip(methods, gcols):
-                    a, sd = mean_of(s["view_synthesis"].get(m), metric, g)
+                    a, sd = mean_of(s.synthesis.held_out.get(m), metric, g)
                     col.append(a)
                     row.append(fmt(metric, a, sd, lpips_ok=lp))
                 rows.append(row)
@@ -343,13 +335,14 @@ def _view_synthesis_tables(doc: Doc, c: Ctx) -> None:
         doc.p(mlabel)
         doc.table(["Scene"] + methods, rows)
     for sec, title in PLANNED_TABLES:
-        if any(s.get(sec) for s in c.ok):
+        if any(s.synthesis.planned(sec) for s in c.ok):
             doc.h(3, title)
             for metric, mlabel in c.metrics:
                 rows = [
-                    [s["name"]] + [fmt(metric, *mean_of(s[sec].get(m), metric), lpips_ok=lp) for m in methods]
+                    [s.name]
+                    + [fmt(metric, *mean_of(s.synthesis.planned(sec).get(m), metric), lpips_ok=lp) for m in methods]
                     for s in c.ok
-                    if s.get(sec)
+                    if s.synthesis.planned(sec)
                 ]
                 doc.p(mlabel)
                 doc.table(["Scene"] + methods, rows)
@@ -358,19 +351,19 @@ def _view_synthesis_tables(doc: Doc, c: Ctx) -> None:
 def _figures(doc: Doc, c: Ctx) -> None:
     """Bar charts per metric: densification (N vs N + synth per reconstructor) and view synthesis."""
     doc.h(2, "Figures")
-    groups, methods = [s["name"] for s in c.ok], method_names(c.ok)
+    groups, methods = [s.name for s in c.ok], method_names(c.ok)
     for metric, mlabel in c.metrics:
         if metric == "lpips" and not c.lp:
             continue
         series = {}
         for r in c.recons:
-            series[f"{r} N"] = [mean_of(s["densification"].get(r, {}).get("base"), metric)[0] for s in c.ok]
-            series[f"{r} N+synth"] = [mean_of(s["densification"].get(r, {}).get(NETWORK), metric)[0] for s in c.ok]
+            series[f"{r} N"] = [mean_of(s.row(r, BASE), metric)[0] for s in c.ok]
+            series[f"{r} N+synth"] = [mean_of(s.row(r, NETWORK), metric)[0] for s in c.ok]
         if groups and series:
             p = c.fig_dir / f"densification_{metric}.png"
             bar_chart(p, f"Densification: {mlabel}", groups, series, mlabel)
             doc.img(str(p.relative_to(c.out_dir)), f"densification {metric}")
-        vseries = {m: [mean_of(s["view_synthesis"].get(m), metric)[0] for s in c.ok] for m in methods}
+        vseries = {m: [mean_of(s.synthesis.held_out.get(m), metric)[0] for s in c.ok] for m in methods}
         if groups and vseries:
             p = c.fig_dir / f"view_synthesis_{metric}.png"
             bar_chart(p, f"View synthesis at held-out poses: {mlabel}", groups, vseries, mlabel)
@@ -380,18 +373,18 @@ def _figures(doc: Doc, c: Ctx) -> None:
 def _examples(doc: Doc, c: Ctx) -> None:
     """The camera plot and, per example frame, ground truth, predictions and error maps."""
     for s in c.ok:
-        if s.get("camera_plot"):
-            doc.p(f"{s['name']}: cameras (inputs, planned/synthesized poses, held-out poses)")
-            doc.img(s["camera_plot"], f"{s['name']} cameras")
-        for frame, imgs in s.get("examples", {}).items():
-            p = c.fig_dir / f"grid_{safe_name(s['name'])}_{safe_name(Path(frame).stem)}.png"
+        if s.camera_plot:
+            doc.p(f"{s.name}: cameras (inputs, planned/synthesized poses, held-out poses)")
+            doc.img(s.camera_plot, f"{s.name} cameras")
+        for frame, imgs in s.examples.items():
+            p = c.fig_dir / f"grid_{safe_name(s.name)}_{safe_name(Path(frame).stem)}.png"
             try:
                 if image_grid(c.out_dir, p, imgs, c.recons):
                     doc.p(
-                        f"{s['name']}, held-out frame {frame}: ground truth, predictions and error maps (view "
+                        f"{s.name}, held-out frame {frame}: ground truth, predictions and error maps (view "
                         "synthesis, then one row per reconstructor)"
                     )
-                    doc.img(str(p.relative_to(c.out_dir)), f"{s['name']} {frame}")
+                    doc.img(str(p.relative_to(c.out_dir)), f"{s.name} {frame}")
             except Exception as e:  # a broken figure must not lose the tables
                 log.warning("image grid for %s failed: %s", frame, e)
 
@@ -402,13 +395,13 @@ def _closing_sections(doc: Doc, c: Ctx) -> None:
     doc.ul(conclusions(c.results))
     if c.failed:
         doc.h(2, "Scenes that failed")
-        doc.table(["Scene", "Error"], [[s.get("name", "?"), str(s.get("error", ""))] for s in c.failed])
+        doc.table(["Scene", "Error"], [[s.name, s.error if isinstance(s, SceneFailure) else ""] for s in c.failed])
     doc.h(2, "Settings")
-    flat = {k: v for k, v in c.settings.items() if k != "versions"}
-    doc.table(["Setting", "Value"], [[k, str(v)] for k, v in flat.items()])
-    doc.table(["Package", "Version"], [[k, str(v)] for k, v in c.settings.get("versions", {}).items()])
+    doc.table(["Setting", "Value"], [[k, str(v)] for k, v in c.settings.table()])
+    doc.table(["Package", "Version"], [[k, str(v)] for k, v in c.settings.versions.items()])
+    nan = float("nan")
     timing_rows = [
-        [s["name"]] + [f"{s['timings'].get(k, float('nan')):.1f}" for k in ("network", "baselines", "total")]
+        [s.name] + [f"{nan if t is None else t:.1f}" for t in (s.timings.network, s.timings.baselines, s.timings.total)]
         for s in c.ok
     ]
     if timing_rows:

@@ -9,53 +9,64 @@ from pathlib import Path
 import numpy as np
 
 from sparself.evaluation.results import (
+    BASE,
     EXTRAPOLATED,
     INTERPOLATED,
     NETWORK,
+    ORACLE,
+    ReconResult,
+    RowError,
     finite,
     mean_of,
     share_of_oracle_gain,
 )
 from sparself.evaluation.results import METRICS as METRIC_NAMES
+from sparself.evaluation.results_file import Results, Settings
+from sparself.evaluation.scene_results import SceneFailure, SceneResult
 
 METRICS = tuple(zip(METRIC_NAMES, ("PSNR (dB) ↑", "SSIM ↑", "LPIPS ↓")))  # (name, table label)
 
 
-def recon_names(scenes: list[dict]) -> list[str]:
+def recon_names(scenes: list[SceneResult]) -> list[str]:
     names: list[str] = []
     for s in scenes:
-        for r in s.get("densification", {}):
+        for r in s.densification:
             if r not in names:
                 names.append(r)
     return names
 
 
-def scene_label(s: dict, r: str | None = None) -> str:
+def row_views(d: ReconResult | None, row: str) -> int | None:
+    """The number of views a reconstructor's row was fitted on (None: it has no such row or says none)."""
+    r = None if d is None else d.row(row)
+    return None if r is None or isinstance(r, RowError) or not r.has_summary else r.views
+
+
+def scene_label(s: SceneResult, r: str | None = None) -> str:
     """Scene label with its view counts, e.g. 'llff_bird (25→35)'."""
     if r is not None:
-        d = s.get("densification", {}).get(r, {})
-        n0 = d.get("base", {}).get("views")
-        n1 = d.get(NETWORK, {}).get("views")
+        d = s.densification.get(r)
+        n0, n1 = row_views(d, BASE), row_views(d, NETWORK)
         if n0 and n1:
-            return f"{s['name']} ({n0}→{n1})"
-    return s["name"]
+            return f"{s.name} ({n0}→{n1})"
+    return s.name
 
 
-def group_rows(s: dict, label: str) -> list[tuple[str, str | None]]:
+def group_rows(s: SceneResult, label: str) -> list[tuple[str, str | None]]:
     """(row label, group) for a scene's rows: all scored held-out frames, then, where some lie beyond the
     first or last input, the interpolated and the extrapolated ones apart."""
-    n_ex = len(s.get("protocol", {}).get("extrapolated", []))
+    n_ex = len(s.split.extrapolated)
     if not n_ex:
         return [(label, None)]
-    n_in = len(s["protocol"].get("scored", [])) - n_ex
+    n_in = len(s.split.scored) - n_ex
     return [
         (label, None),
-        (f"{s['name']}: interpolated ({n_in})", INTERPOLATED),
-        (f"{s['name']}: extrapolated ({n_ex})", EXTRAPOLATED),
+        (f"{s.name}: interpolated ({n_in})", INTERPOLATED),
+        (f"{s.name}: extrapolated ({n_ex})", EXTRAPOLATED),
     ]
 
 
-def average_rows(cols: dict, cells, ok: list[dict]) -> list[list[str]]:
+def average_rows(cols: dict, cells, ok: list[SceneResult]) -> list[list[str]]:
     """'Average' rows over scenes: of all frames, and per group where two or more scenes have groups (one
     scene's rows would only repeat). ``cols``: group -> one list of values per column; ``cells(values)``:
     the row's cells of one column."""
@@ -76,17 +87,17 @@ class Ctx:
     """What every section of the report reads: the results, the scenes that ran, the reconstructors,
     whether LPIPS is available, and where figures go."""
 
-    results: dict
-    ok: list[dict]
-    failed: list[dict]
+    results: Results
+    ok: list[SceneResult]
+    failed: list[SceneResult | SceneFailure]
     recons: list[str]
     lp: bool
     out_dir: Path
     fig_dir: Path
 
     @property
-    def settings(self) -> dict:
-        return self.results.get("settings", {})
+    def settings(self) -> Settings:
+        return self.results.settings
 
     @property
     def metrics(self) -> tuple[tuple[str, str], ...]:
@@ -94,27 +105,28 @@ class Ctx:
         return METRICS if self.lp else tuple(m for m in METRICS if m[0] != "lpips")
 
 
-def share_cell(d: dict, share: str = "oracle_share") -> str:
-    sh, gain = finite(d.get(share)), finite(d.get("oracle_gain_db"))
-    if str(d.get("instrument", "ok")).startswith("failed"):  # more real photos made it worse
+def share_cell(d: ReconResult, row: str = NETWORK) -> str:
+    """The share of the oracle's gain of network row ``row`` (or why there is none)."""
+    sh, gain = finite(d.shares.get(row)), finite(d.oracle_gain_db)
+    if d.instrument_failed:  # more real photos made it worse
         return f"instrument failed (oracle {gain:+.2f} dB vs N)"
     return f"{100 * sh:.0f}%" if sh is not None else (f"n/a (oracle gain {gain:+.2f} dB)" if gain is not None else "–")
 
 
-def group_share_cell(d: dict, group: str, key: str = NETWORK) -> str:
-    """The oracle share of ``key`` on one group's frames (where the instrument holds and the gain is measurable)."""
-    b, o, s = (mean_of(d.get(k), "psnr", group)[0] for k in ("base", "oracle", key))
+def group_share_cell(d: ReconResult, group: str, row: str = NETWORK) -> str:
+    """The oracle share of ``row`` on one group's frames (where the instrument holds and the gain is measurable)."""
+    b, o, s = (mean_of(d.row(k), "psnr", group)[0] for k in (BASE, ORACLE, row))
     share = share_of_oracle_gain(b, s, o)
-    if str(d.get("instrument", "ok")).startswith("failed") or share is None:
+    if d.instrument_failed or share is None:
         return "–"
     return f"{100 * share:.0f}%"
 
 
-def method_names(ok: list[dict]) -> list[str]:
+def method_names(ok: list[SceneResult]) -> list[str]:
     methods: list[str] = []
     for s in ok:
-        for k, v in s.get("view_synthesis", {}).items():
-            if k not in methods and "summary" in v:
+        for k, v in s.synthesis.held_out.items():
+            if k not in methods and v.has_summary:
                 methods.append(k)
     return methods
 

@@ -22,6 +22,7 @@ from sparself.evaluation.results import (
     FrameScore,
     ScoredSet,
 )
+from sparself.evaluation.scene_results import SceneResult
 from sparself.evaluation.split import HeldOutSplit
 from sparself.evaluation.weighting import ValidationViews
 
@@ -29,7 +30,7 @@ from sparself.evaluation.weighting import ValidationViews
 @dataclass
 class SceneEval:
     """One scene's evaluation as its named steps fill it in: the split, the inputs and planned poses, the
-    images each method synthesized at the planned poses, and the results (``res``, JSON-able)."""
+    images each method synthesized at the planned poses, and the run's results (``result``)."""
 
     name: str
     cfg: EvalConfig
@@ -39,7 +40,7 @@ class SceneEval:
     inputs: Scene
     planned: list[Frame]
     mid_truth: dict[int, int]  # planned pose k -> the real frame at it (dense: midpoints and extrapolations)
-    res: dict
+    result: SceneResult
     out_dir: Path | None = None
     ex_dir: Path | None = None
     net_planned: list[np.ndarray] = field(default_factory=list)  # per seed
@@ -48,11 +49,11 @@ class SceneEval:
     net_targets: list[tuple[np.ndarray, np.ndarray | None]] = field(default_factory=list)  # per seed: at the targets
     validation: ValidationViews | None = None  # made once per scene, shared by every reconstructor
     baseline_planned: dict[str, np.ndarray] = field(default_factory=dict)
-    on_partial: Callable[[dict], None] | None = None  # called with ``res`` after each finished step
+    on_partial: Callable[[SceneResult], None] | None = None  # called with ``result`` after each finished step
 
     def partial(self) -> None:
         if self.on_partial is not None:
-            self.on_partial(self.res)
+            self.on_partial(self.result)
 
     @property
     def targets(self) -> list[Frame]:
@@ -91,7 +92,7 @@ class SceneEval:
         if not (d / "ground_truth.png").exists():
             save_image(d / "ground_truth.png", truth)
         save_image(d / f"{_safe(label)}.png", image)
-        ex = self.res["examples"].setdefault(frame, {})
+        ex = self.result.examples.setdefault(frame, {})
         ex["ground_truth"] = str((d / "ground_truth.png").relative_to(self.out_dir))
         ex[label] = str((d / f"{_safe(label)}.png").relative_to(self.out_dir))
 

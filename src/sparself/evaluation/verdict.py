@@ -1,8 +1,8 @@
 """What the report opens with: a verdict per reconstructor (and per N in a sweep) on whether densifying with
 sparself's views helps it, and the PSNR-against-N series of a sweep (``evaluate --inputs 9,12,25``).
 
-Read from ``results.json`` scenes (dicts), old single-N files included: scenes without ``inputs_n`` are
-judged together, one without ``capture`` is its own capture.
+Read from the runs' :class:`~sparself.evaluation.scene_results.SceneResult`, old single-N files included:
+runs without ``inputs_n`` are judged together, one without ``capture`` is its own capture.
 """
 
 from __future__ import annotations
@@ -11,28 +11,39 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sparself.evaluation.results import NETWORK, NETWORK_CHECKED, finite, mean_of, share_of_oracle_gain
+from sparself.evaluation.results import (
+    BASE,
+    NETWORK,
+    NETWORK_CHECKED,
+    ORACLE,
+    ReconResult,
+    SeededSets,
+    finite,
+    mean_of,
+    share_of_oracle_gain,
+)
+from sparself.evaluation.scene_results import SceneResult
 
 HELPS, DOES_NOT_HELP, CANNOT_TELL = "helps", "does not help", "cannot tell"
 MIN_CHANGE_DB = 0.1  # a change smaller than this is no change, whatever the spread over seeds
-# the rows of the PSNR-against-N plot: (key in a reconstructor's results, label)
+# the rows of the PSNR-against-N plot: (row name in a reconstructor's results, label)
 SWEEP_ROWS = (
-    ("base", "N"),
+    (BASE, "N"),
     (NETWORK, "N + sparself"),
     (NETWORK_CHECKED, "N + sparself, checked"),
     ("flow", "N + flow"),
-    ("oracle", "oracle (N + real)"),
+    (ORACLE, "oracle (N + real)"),
 )
 
 
-def n_inputs(s: dict) -> int | None:
+def n_inputs(s: SceneResult) -> int | None:
     """A run's N as the evaluation asked for it (None in results from before the sweep: one N for all; a
     sparse capture's own input count differs from N and is not grouped by)."""
-    return s.get("inputs_n")
+    return s.inputs_n
 
 
-def capture(s: dict) -> str:
-    return s.get("capture") or s.get("name", "?")
+def capture(s: SceneResult) -> str:
+    return s.capture_name
 
 
 def decide(change: float | None, spread: float | None) -> str:
@@ -90,23 +101,23 @@ def _mean(vals: list) -> float | None:
     return float(np.mean(v)) if v else None
 
 
-def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
+def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
     """The verdict on ``recon`` from the scenes (one N) that ran it: on the checked row (what ``densify --recon``
     writes) where they have it, else on N + every planned view."""
     changes, spreads, shares, gains, failed = [], [], [], [], []
-    row = NETWORK_CHECKED if any("summary" in _entry(s, recon).get(NETWORK_CHECKED, {}) for s in scenes) else NETWORK
+    row = NETWORK_CHECKED if any(_summarised(s, recon, NETWORK_CHECKED) for s in scenes) else NETWORK
     for s in scenes:
-        d = s.get("densification", {}).get(recon, {})
-        if str(d.get("instrument", "ok")).startswith("failed"):
+        d = s.densification.get(recon, ReconResult())
+        if d.instrument_failed:
             failed.append(capture(s))
             continue
-        base = mean_of(d.get("base"), "psnr")[0]
-        net, sd = mean_of(d.get(row), "psnr")
+        base = mean_of(d.row(BASE), "psnr")[0]
+        net, sd = mean_of(d.row(row), "psnr")
         if base is None or net is None:
             continue
         changes.append(net - base)
         spreads.append(sd)
-        oracle = mean_of(d.get("oracle"), "psnr")[0]
+        oracle = mean_of(d.row(ORACLE), "psnr")[0]
         share = share_of_oracle_gain(base, net, oracle)
         shares.append(share)
         gains.append(None if share is None or oracle is None else oracle - base)
@@ -117,21 +128,22 @@ def verdict(scenes: list[dict], recon: str, n: int | None) -> Verdict:
     return Verdict(recon, n, word, change, spread, share, _mean(gains), len(changes), failed, shared, row != NETWORK)
 
 
-def _entry(s: dict, recon: str) -> dict:
-    return s.get("densification", {}).get(recon, {})
+def _summarised(s: SceneResult, recon: str, row: str) -> bool:
+    r = s.densification.get(recon, ReconResult()).row(row)
+    return isinstance(r, SeededSets) and r.summarized
 
 
-def verdicts(ok: list[dict], recons: list[str]) -> list[Verdict]:
+def verdicts(ok: list[SceneResult], recons: list[str]) -> list[Verdict]:
     """One verdict per reconstructor and N (in ascending N)."""
     out = []
     for r in recons:
-        ran = [s for s in ok if r in s.get("densification", {})]
+        ran = [s for s in ok if r in s.densification]
         for n in sorted({n_inputs(s) or 0 for s in ran}):
             out.append(verdict([s for s in ran if (n_inputs(s) or 0) == n], r, n or None))
     return out
 
 
-def is_sweep(ok: list[dict]) -> bool:
+def is_sweep(ok: list[SceneResult]) -> bool:
     """Whether some capture ran at more than one N."""
     ns: dict[str, set] = {}
     for s in ok:
@@ -139,7 +151,9 @@ def is_sweep(ok: list[dict]) -> bool:
     return any(len(v) > 1 for v in ns.values())
 
 
-def sweep_series(ok: list[dict], recons: list[str]) -> dict[str, dict[str, dict[str, tuple[list[int], list[float]]]]]:
+def sweep_series(
+    ok: list[SceneResult], recons: list[str]
+) -> dict[str, dict[str, dict[str, tuple[list[int], list[float]]]]]:
     """capture -> reconstructor -> row label -> (N values, mean PSNR at each), for the captures that ran at
     more than one N (rows and points that did not run are left out)."""
     out: dict = {}
@@ -150,7 +164,7 @@ def sweep_series(ok: list[dict], recons: list[str]) -> dict[str, dict[str, dict[
         for r in recons:
             rows = {}
             for key, label in SWEEP_ROWS:
-                pts = [(n_inputs(s), mean_of(s.get("densification", {}).get(r, {}).get(key), "psnr")[0]) for s in runs]
+                pts = [(n_inputs(s), mean_of(s.row(r, key), "psnr")[0]) for s in runs]
                 pts = [(n, finite(v)) for n, v in pts if finite(v) is not None]
                 if pts:
                     rows[label] = ([n for n, _ in pts], [v for _, v in pts])

@@ -13,6 +13,7 @@ from sparself.core import metrics
 from sparself.core.errors import ConfigError
 from sparself.evaluation.config import VALIDATION_EVERY
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, with_images
+from sparself.evaluation.results import WeightChoice
 from sparself.recon import Renderer
 
 
@@ -88,17 +89,17 @@ def weight_scores(
 
 def choose_weight(
     inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
-) -> dict:
+) -> WeightChoice:
     """The synthetic-frame weight of ``grid`` whose fit on the inputs minus :func:`validation_inputs` (+ the
     planned ``views``) renders those held-back *input* views best (mean PSNR; the first on ties), as
     :func:`weight_scores` measures it."""
     val = validation_inputs(len(inputs))
     scores = {w: float(np.mean(v)) for w, v in weight_scores(inputs, planned, views, grid, fit).items()}
     best = max(scores, key=lambda w: scores[w])
-    return {
-        "weight": best,
-        "validation_psnr": {str(w): v for w, v in scores.items()},
-        "validation_views": [inputs.frames[i].name for i in val],
-        "validation_sources": list(views.sources),
-        "confidence": views.confidence is not None,
-    }
+    return WeightChoice(
+        best,
+        {str(w): v for w, v in scores.items()},
+        [inputs.frames[i].name for i in val],
+        list(views.sources),
+        views.confidence is not None,
+    )

@@ -22,7 +22,7 @@ import logging
 import re
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Sequence
+from typing import ClassVar, Sequence
 
 import numpy as np
 from PIL import Image
@@ -89,6 +89,8 @@ class SelfCheck:
     kept views only (None when that was not fitted); weight: the chosen synthetic-frame weight (None: no view
     kept); views: every planned view; reason: the decision in words; fixer: the fixer's test (None: not
     tried)."""
+
+    KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
     recon: str
     plan: str
@@ -309,7 +311,7 @@ def write_sparself_json(folder: Path, scene: Scene, split: DenseSplit, sources: 
         "frames": [_frame_doc(f, s, info.made_from) for f, s in zip(scene.frames, sources)],
     }
     if info.selfcheck is not None:
-        doc["selfcheck"] = info.selfcheck.to_json()
+        doc[SelfCheck.KEY] = info.selfcheck.to_json()
     out = Path(folder) / SPARSELF_JSON
     out.write_text(json.dumps(doc, indent=1) + "\n")
     return out
@@ -350,7 +352,7 @@ def read_selfcheck(folder: Path) -> SelfCheck | None:
     p = Path(folder) / SPARSELF_JSON
     try:
         doc = json.loads(p.read_text()) if p.is_file() else {}
-        return SelfCheck.from_json(doc["selfcheck"]) if "selfcheck" in doc else None
+        return SelfCheck.from_json(doc[SelfCheck.KEY]) if SelfCheck.KEY in doc else None
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"{p}: unreadable self-check record ({e})") from None
 
