@@ -61,6 +61,8 @@ def test_one_run_scores_every_n_on_the_same_frames_and_plots_psnr_against_n(tmp_
     assert "- nearest at N = 3: " in verdict_part and "- nearest at N = 5: " in verdict_part
     assert "![cap PSNR against N](figures/sweep_cap.png)" in verdict_part
     assert (out / "figures" / "sweep_cap.png").stat().st_size > 1000
+    # the tables list each N's run; no row averages runs of different N
+    assert "| cap N=3" in md and "| cap N=5" in md and "| Average" not in md
     assert (out / "examples" / "cap_N_3").is_dir() and (out / "examples" / "cap_N_5").is_dir()
 
 

@@ -23,6 +23,7 @@ from sparself.evaluation.results import (
 from sparself.evaluation.results import METRICS as METRIC_NAMES
 from sparself.evaluation.results_file import Results, Settings
 from sparself.evaluation.scene_results import SceneFailure, SceneResult
+from sparself.evaluation.verdict import is_sweep
 
 METRICS = tuple(zip(METRIC_NAMES, ("PSNR (dB) ↑", "SSIM ↑", "LPIPS ↓")))  # (name, table label)
 
@@ -69,7 +70,10 @@ def group_rows(s: SceneResult, label: str) -> list[tuple[str, str | None]]:
 def average_rows(cols: dict, cells, ok: list[SceneResult]) -> list[list[str]]:
     """'Average' rows over scenes: of all frames, and per group where two or more scenes have groups (one
     scene's rows would only repeat). ``cols``: group -> one list of values per column; ``cells(values)``:
-    the row's cells of one column."""
+    the row's cells of one column. None in an N sweep: an average over different N means nothing (the verdict
+    and the PSNR-against-N plot give each N)."""
+    if is_sweep(ok):
+        return []
     grouped = sum(len(group_rows(s, "")) > 1 for s in ok) > 1
     rows = []
     for g, label in (
