@@ -222,9 +222,9 @@ def _failures(results: list[UnitResult]) -> list[UnitFailure]:
 
 
 def _densify_report(units: list[Unit], results: list[UnitResult], tmp: Path, manifest: Path) -> None:
-    rows = [
-        UnitRecord(
-            **dataclasses.asdict(r),
+    rows: list[UnitRecord] = [
+        dataclasses.replace(
+            r,
             name=u.capture,
             source=str(u.source),
             output=str(u.out.relative_to(u.logs.parent)),
@@ -257,10 +257,7 @@ def _evaluate_report(units: list[Unit], results: list[UnitResult], tmp: Path, ma
         data.scenes.append(scene)
     seeds = [u.seed for u in units]  # each evaluate unit runs its config's first_seed
     data.settings = data.settings.for_batch(len(set(seeds)), str(manifest))
-    data.units = [
-        UnitRecord(**dataclasses.asdict(r), output=str(u.out.relative_to(u.logs.parent)))
-        for u, r in zip(units, results)
-    ]
+    data.units = [dataclasses.replace(r, output=str(u.out.relative_to(u.logs.parent))) for u, r in zip(units, results)]
     (tmp / "results.json").write_text(json.dumps(data.to_json(), indent=1, allow_nan=True))
     write_report(data, tmp)
 

@@ -17,6 +17,7 @@ from sparself.core.errors import ConfigError, InputError, OutputError, SparselfE
 from sparself.core.outputs import atomic_file
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.evaluate import evaluate
+from sparself.evaluation.results_file import UnitRecord
 from sparself.evaluation.scene_results import SceneFailure
 from sparself.evaluation.selfcheck import SelfCheckConfig
 from sparself.pipeline import DensifyConfig, densify
@@ -88,19 +89,10 @@ class Unit:
         return self.logs / f"{self.key}.json"
 
 
-@dataclass
-class UnitResult:
-    """What became of a unit. status: "ok" or "failed" (error: one line). views/synthesized: densify's
-    counts of real and synthesized views. skipped: complete from an earlier run."""
-
-    capture: str
-    seed: int
-    status: str
-    error: str | None = None
-    seconds: float = 0.0
-    views: int | None = None
-    synthesized: int | None = None
-    skipped: bool = False
+class UnitResult(UnitRecord):
+    """What became of a unit (:class:`sparself.evaluation.results_file.UnitRecord`: status "ok" or "failed"
+    with a one-line error, densify's counts of real and synthesized views, skipped: complete from an earlier
+    run)."""
 
     def label(self, kind: str) -> str:
         """The capture, with the seed for an evaluation unit ('bird (seed 1)'; densify has one unit each)."""
@@ -242,7 +234,7 @@ def write_record(unit: Unit, res: UnitResult) -> None:
         tmp.write_text(
             json.dumps(
                 {
-                    **dataclasses.asdict(res),
+                    **res.to_json(),
                     "skipped": False,
                     "source": str(unit.source),
                     "config": config_json(unit.config),

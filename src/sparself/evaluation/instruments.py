@@ -6,7 +6,7 @@ from __future__ import annotations
 import platform
 import subprocess
 import tempfile
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -37,12 +37,19 @@ def load_truth(frame: Frame, size: tuple[int, int]) -> np.ndarray:
     return load_image(frame.path, size=size)
 
 
-def score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> dict:
-    return {
-        "psnr": metrics.psnr(pred, truth),
-        "ssim": metrics.ssim(pred, truth),
-        "lpips": metrics.lpips(pred, truth) if use_lpips else None,
-    }
+@dataclass(frozen=True)
+class ImageScores:
+    """One image against its photo: PSNR (dB), SSIM, LPIPS (None: not scored)."""
+
+    psnr: float
+    ssim: float
+    lpips: float | None
+
+
+def score(pred: np.ndarray, truth: np.ndarray, use_lpips: bool) -> ImageScores:
+    """(H, W, 3) prediction against (H, W, 3) truth in [0, 1]."""
+    lp = metrics.lpips(pred, truth) if use_lpips else None
+    return ImageScores(metrics.psnr(pred, truth), metrics.ssim(pred, truth), lp)
 
 
 def versions() -> dict:

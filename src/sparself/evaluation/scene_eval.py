@@ -80,7 +80,8 @@ class SceneEval:
         for k, i in enumerate(idx):
             frame = self.full.frames[i]
             truth = load_truth(frame, self.full.image_size(i))
-            rows.append(FrameScore(frame.name, i, **score(images[k], truth, self.cfg.lpips), group=self.split.group(i)))
+            sc = score(images[k], truth, self.cfg.lpips)
+            rows.append(FrameScore(frame.name, i, sc.psnr, sc.ssim, sc.lpips, group=self.split.group(i)))
             if held_out and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
                 self._save_example(frame.name, label, images[k], truth)
         return ScoredSet(rows, seed=seed, views=views)
