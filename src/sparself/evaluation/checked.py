@@ -19,7 +19,7 @@ from sparself.evaluation.fixing import fixed
 from sparself.evaluation.instruments import renders, with_images
 from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
-from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
+from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, check_cameras, checked_views
 from sparself.recon import Renderer
 from sparself.synthesis.plan import PlanConfig
 
@@ -50,10 +50,8 @@ def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig
     fit the written views were merged with (None: no fixer was used)."""
     if checked.fixer is None or checked.reference is None:
         return None
-    side = max(max(c.width, c.height) for c in ev.full.cameras.values())
-    small = ev.full.resized(cfg.check_size) if side > cfg.check_size else ev.full  # the check's cameras
     imgs, conf = ev.net_targets[k]
-    out = fixed(checked.fixer, imgs, renders(checked.reference, small, ev.targets), conf)
+    out = fixed(checked.fixer, imgs, renders(checked.reference, check_cameras(ev.full, cfg), ev.targets), conf)
     return ev.score(out, label, ev.scored, seed=ev.cfg.first_seed + k)
 
 

@@ -138,10 +138,15 @@ def _cpu_splatting() -> bool:
     return not available()[0]
 
 
+def check_cameras(scene: Scene, cfg: SelfCheckConfig) -> Scene:
+    """The scene with its cameras at ``cfg.check_size`` (never enlarged); no image is read."""
+    side = max(max(c.width, c.height) for c in scene.cameras.values())
+    return scene.resized(cfg.check_size) if side > cfg.check_size else scene
+
+
 def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     """The scene with images in memory at ``cfg.check_size`` (never enlarged)."""
-    side = max(max(c.width, c.height) for c in scene.cameras.values())
-    return preloaded(scene.resized(cfg.check_size) if side > cfg.check_size else scene)
+    return preloaded(check_cameras(scene, cfg))
 
 
 def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
@@ -201,10 +206,10 @@ class _Fits:
 
 
 def _validation_views(
-    inputs: Scene, small: Scene, planned: list[Frame], synth: SynthFn, base: Renderer, cfg: SelfCheckConfig
+    inputs: Scene, small: Scene, planned: list[Frame], synth: SynthFn, base: Renderer, ref: np.ndarray, cfg
 ) -> tuple[ValidationViews, FixerFit | None]:
-    """The planned views synthesized without the held-back inputs, at ``small``'s size, fixed with the render
-    of ``base`` (the fit without the held-back inputs) when the fixer beats both on those inputs."""
+    """The planned views synthesized without the held-back inputs, at ``small``'s size, fixed with ``ref`` (the
+    render there of ``base``, the fit without the held-back inputs) when the fixer beats both on those inputs."""
     cam = small.cameras[planned[0].camera_id]
     size = (cam.width, cam.height)
     raw = validation_views(inputs, planned, synth)
@@ -215,15 +220,14 @@ def _validation_views(
     fix = held_back_fixer(inputs, small, base, synth, FIXER_STEPS, cfg.check_seed)
     if fix.fixer is None:
         return vv, fix
-    return replace(vv, images=fixed(fix.fixer, vv.images, renders(base, small, planned), vv.confidence)), fix
+    return replace(vv, images=fixed(fix.fixer, vv.images, ref, vv.confidence)), fix
 
 
 def _validation_fits(
-    small: Scene, planned: list[Frame], views: ValidationViews, base: Renderer, fit, cfg
+    small: Scene, planned: list[Frame], views: ValidationViews, base: Renderer, ref: np.ndarray, fit, cfg
 ) -> tuple[_Fits, ValidationViews]:
-    """Lower the validation views' confidence against the render of the fit without views, fit with them per
-    weight."""
-    ref = renders(base, small, planned)
+    """Lower the validation views' confidence against ``ref`` (the render of the fit without views, ``base``),
+    fit with them per weight."""
     views = replace(views, confidence=informative_confidence(views.images, views.confidence, ref, cfg))
     return _Fits(held_back_psnr(small, base), weight_scores(small, planned, views, cfg.check_weights, fit), ref), views
 
@@ -264,8 +268,9 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
     fit = check_fit(cfg)
     small = at_check_size(inputs, cfg)
     base = fit(validation_split(small)[1])
-    vv, fix = _validation_views(inputs, small, planned, synth, base, cfg)
-    fits, vv = _validation_fits(small, planned, vv, base, fit, cfg)
+    ref = renders(base, small, planned)
+    vv, fix = _validation_views(inputs, small, planned, synth, base, ref, cfg)
+    fits, vv = _validation_fits(small, planned, vv, base, ref, fit, cfg)
     d = _decide(small, planned, vv, fits, fit, cfg)
     without = float(fits.without.mean())
     paid = d.best - without > cfg.min_gain
