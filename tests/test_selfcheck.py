@@ -14,7 +14,13 @@ from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
 from sparself.capture.io.dense import SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.geometry import Pose
-from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, view_gains, weakest_plan
+from sparself.evaluation.selfcheck import (
+    SelfCheckConfig,
+    checkable,
+    informative_confidence,
+    view_gains,
+    weakest_plan,
+)
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
 from sparself.synthesis.synthesize import Synthesized
 
@@ -60,7 +66,7 @@ def test_bad_views_are_not_written_and_sparself_json_says_why(tmp_path, monkeypa
     assert rec.kept == () and rec.weight is None and len(rec.views) == 6
     assert "without synthesized views" in rec.reason and "mpi" in rec.reason
     assert max(p for _, p in rec.psnr_by_weight) < rec.psnr_without  # noise made every fit worse
-    assert all(v.gain < 0 for v in rec.views)
+    assert all(v.gain < 0 for v in rec.views if v.gain is not None)
     assert [r.getMessage() for r in caplog.records if "self-check" in r.getMessage()] == [f"self-check: {rec.reason}"]
 
 
@@ -70,13 +76,17 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     rec = read_selfcheck(folder)
     planned = plan_poses(_line(), PLAN)  # --plan paper: exactly today's plan
     assert [v.name for v in rec.views] == [f.name for f in planned]
-    assert [f.name for f in dense.frames if f.synthetic] == list(rec.kept) == [f.name for f in planned]
-    assert all(v.gain > 0 for v in rec.views) and rec.weight in MPI.check_weights
+    measured = [v.name for v in rec.views if v.gain is not None]
+    assert 0 < len(measured) < len(planned)  # the paper's plan put a view beside a held-back photo
+    assert [f.name for f in dense.frames if f.synthetic] == list(rec.kept) == measured
+    assert all(v.gain > 0 for v in rec.views if v.gain is not None) and rec.weight in MPI.check_weights
     assert dict(rec.psnr_by_weight)[rec.weight] > rec.psnr_without
     doc = json.loads((folder / "sparself.json").read_text())
     test = {f["source_name"] for f in doc["frames"] if f["name"] in doc["split"]["test"]}
     inputs = [f.name for f in _line().frames if f.name not in test]  # the test photos never reach the check
     assert test and rec.validation == (inputs[2], inputs[7])  # every 5th interior input, from the third
+    checked = _line().subset([i for i, f in enumerate(_line().frames) if f.name in inputs])
+    assert [v.gain is not None for v in rec.views] == checkable(checked, planned).tolist()
     # the fixer was tried on those same photos; exact views cannot be beaten, so it was not used
     assert rec.fixer is not None and rec.fixer.held_back == rec.validation and not rec.fixer.used
     written = json.loads((tmp_path / "out" / "plan.json").read_text())["frames"]
@@ -184,10 +194,31 @@ def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
     assert [f.index for f in pick_poses(cands, weak, PlanConfig(n_mid=2, n_extra=0))] == [0.25, 1.25]
 
 
+def test_views_between_the_neighbours_of_a_held_back_input_are_not_checkable():
+    scene = _line(12)  # held back: positions 2 and 7, so the gaps 1..3 and 6..8 are twice as wide in the check
+    xs = (-0.2, 0.5, 1.0, 1.5, 2.5, 3.0, 4.5, 6.5, 7.5, 8.0, 11.2)
+    frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
+    assert checkable(scene, frames).tolist() == [True, True, True, False, False, True, True, False, False, True, True]
+
+
+def test_the_weak_plan_avoids_the_gaps_the_check_widens():
+    scene = _line(12)
+
+    class Bump:  # one half renders a bump at the held-back input 2 (x = 0.2), the other zeros
+        def __init__(self, on):
+            self.on = on
+
+        def render(self, pose: Pose, cam):
+            v = np.exp(-(((pose.center[0] - 0.2) / 0.15) ** 2)) if self.on else 0.0
+            return np.full((cam.height, cam.width, 3), v, np.float32)
+
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), lambda sc: Bump(sc.frames[0].name == "src1"))
+    assert all(checkable(scene, picked)) and sorted(int(f.index) for f in picked) == [0, 3]  # nearest outside 1..3
+
+
 def test_the_self_check_record_round_trips_through_json():
-    rec = SelfCheck(
-        "3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, (ViewCheck("n", 1.5, 0.3, True),), "r"
-    )
+    views = (ViewCheck("n", 1.5, 0.3, True), ViewCheck("m", 2.5, None, False))
+    rec = SelfCheck("3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, views, "r")
     assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
     assert rec.kept == ("n",)
 

@@ -8,7 +8,9 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
   (:mod:`sparself.evaluation.weighting`), the views are synthesized again without those photos, and the
   reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
   the PSNR change at the held-back inputs nearest to it; views that gain are kept (refitted alone to confirm),
-  and when nothing beats the fit without views, none is written.
+  and when nothing beats the fit without views, none is written. Only views outside every held-back input's
+  widened gap (between its two neighbours) are checked, planned or kept (:func:`checkable`): a view there
+  would fill a hole twice as wide as any the final fit, which has that input, ever has.
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on the held-back
   inputs merges each view with the render of the fit without it, pixel by pixel; the merged views replace
   the network's when they beat both the views and the render on those photos (each scored by a fixer that
@@ -149,11 +151,26 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     return preloaded(check_cameras(scene, cfg))
 
 
+def checkable(inputs: Scene, planned: list[Frame]) -> np.ndarray:
+    """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
+    the indices of the inputs on either side of it (``inputs`` in path order; :func:`validation_inputs`).
+
+    A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
+    hole the final fit never has, so it does not carry over (and it would blur the others' gains there)."""
+    idx = [f.index for f in inputs.frames]
+    gaps = [sorted((idx[p - 1], idx[p + 1])) for p in validation_inputs(len(inputs))]
+    return np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
+
+
 def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
-    their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses`."""
+    their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses` that are
+    :func:`checkable` (so the self-check can measure every planned view) when there are any."""
     cands = candidate_poses(inputs, replace(plan, order="capture"))
+    ok = checkable(inputs, [c.frame for c in cands])
+    if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
+        cands = [c for c, k in zip(cands, ok) if k]
     frames = [c.frame for c in cands]
     a, b = (renders(fit(inputs.subset(range(k, len(inputs), 2))), inputs, frames) for k in (0, 1))
     weak = np.abs(a - b).mean(axis=(1, 2, 3))
@@ -268,23 +285,28 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
     fit = check_fit(cfg)
     small = at_check_size(inputs, cfg)
     base = fit(validation_split(small)[1])
+    ok = checkable(small, planned)
+    sub = [planned[i] for i in np.flatnonzero(ok)]
     ref = renders(base, small, planned)
-    vv, fix = _validation_views(inputs, small, planned, synth, base, ref, cfg)
-    fits, vv = _validation_fits(small, planned, vv, base, ref, fit, cfg)
-    d = _decide(small, planned, vv, fits, fit, cfg)
+    if not sub:
+        return _nothing_checkable(small, planned, final, base, cfg, plan)
+    vv, fix = _validation_views(inputs, small, sub, synth, base, ref[ok], cfg)
+    fits, vv = _validation_fits(small, sub, vv, base, ref[ok], fit, cfg)
+    d = _decide(small, sub, vv, fits, fit, cfg)
     without = float(fits.without.mean())
     paid = d.best - without > cfg.min_gain
-    keep = d.keep & paid
+    keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
+    keep[ok], gains[ok] = d.keep & paid, d.gains
     record = SelfCheck(
         recon=cfg.recon,
         plan=plan,
-        validation=tuple(small.frames[i].name for i in validation_inputs(len(small))),
+        validation=_held_back_names(small),
         psnr_without=without,
         psnr_by_weight=tuple((w, float(v.mean())) for w, v in fits.by_weight.items()),
         psnr_kept=d.kept_psnr,
         weight=d.weight if paid else None,
-        views=tuple(ViewCheck(f.name, float(f.index), float(g), bool(k)) for f, g, k in zip(planned, d.gains, keep)),
-        reason=_reason(cfg.recon, int(keep.sum()), len(planned), d, without),
+        views=_view_checks(planned, gains, keep),
+        reason=_reason(cfg.recon, int(keep.sum()), len(planned), d, without, int((~ok).sum())),
         fixer=None if fix is None else fix.record,
     )
     (log.info if paid else log.warning)("self-check: %s", record.reason)
@@ -294,8 +316,44 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
     reference = fit(small) if fixer is not None and len(idx) else None
     if fixer is not None and reference is not None:
         images = fixed(fixer, images, renders(reference, small, planned), conf)
-    exported = _exported(images, conf, fits.reference, d.weight, cfg)
+    exported = _exported(images, conf, ref, d.weight, cfg)
     return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer, reference)
+
+
+def _held_back_names(small: Scene) -> tuple[str, ...]:
+    return tuple(small.frames[i].name for i in validation_inputs(len(small)))
+
+
+def _view_checks(planned: list[Frame], gains: np.ndarray, keep: np.ndarray) -> tuple[ViewCheck, ...]:
+    """One record per planned view; gain None where it could not be checked (NaN in ``gains``)."""
+    return tuple(
+        ViewCheck(f.name, float(f.index), None if np.isnan(g) else float(g), bool(k))
+        for f, g, k in zip(planned, gains, keep)
+    )
+
+
+def _nothing_checkable(small: Scene, planned: list[Frame], final, base: Renderer, cfg, plan: str) -> Checked:
+    """The decision when no planned view can be checked (:func:`checkable`): none is written."""
+    without = float(held_back_psnr(small, base).mean())
+    reason = (
+        f"none of the {len(planned)} planned views lies where the held-back input photos can measure it (each "
+        f"is between the neighbours of one): the capture is written without synthesized views"
+    )
+    log.warning("self-check: %s", reason)
+    gains = np.full(len(planned), np.nan)
+    record = SelfCheck(
+        cfg.recon,
+        plan,
+        _held_back_names(small),
+        without,
+        (),
+        None,
+        None,
+        _view_checks(planned, gains, gains > 0),
+        reason,
+    )
+    images, _ = images_and_confidence(final)
+    return Checked([], images[:0], np.zeros(images[:0].shape[:3], np.float32), record)
 
 
 def checked_views(
@@ -325,13 +383,14 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
 
 
-def _reason(recon: str, kept: int, planned: int, d: _Decision, without: float) -> str:
+def _reason(recon: str, kept: int, planned: int, d: _Decision, without: float, unchecked: int) -> str:
+    aside = f" ({unchecked} planned between the neighbours of a held-back photo could not be checked)" * (unchecked > 0)
     if kept == 0:
         return (
             f"no synthesized view improves the {recon} fit on the held-back input photos (best {d.best:.2f} dB, "
-            f"{without:.2f} dB without views): the capture is written without synthesized views"
+            f"{without:.2f} dB without views){aside}: the capture is written without synthesized views"
         )
     return (
         f"kept {kept} of {planned} synthesized views at weight {d.weight:g}: the {recon} fit renders the "
-        f"held-back input photos at {d.best:.2f} dB with them, {without:.2f} dB without"
+        f"held-back input photos at {d.best:.2f} dB with them, {without:.2f} dB without{aside}"
     )

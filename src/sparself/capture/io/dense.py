@@ -47,12 +47,13 @@ _RANKED = re.compile(r"^\d{4,}_")
 @dataclass(frozen=True)
 class ViewCheck:
     """One planned view in the self-check: its planned name and index, its validation gain (dB of PSNR on the
-    held-back input photos nearest to it, fit with the synthesized views minus fit without), and whether it
-    was kept."""
+    held-back input photos nearest to it, fit with the synthesized views minus fit without; None: it lay
+    between the neighbours of a held-back photo, where it cannot be measured, and was not kept), and whether
+    it was kept."""
 
     name: str
     index: float
-    gain: float
+    gain: float | None
     kept: bool
 
 
@@ -120,14 +121,19 @@ class SelfCheck:
             validation=tuple(map(str, doc["validation"])),
             psnr_without=float(doc["psnr_without"]),
             psnr_by_weight=tuple((float(d["weight"]), float(d["psnr"])) for d in doc["psnr_by_weight"]),
-            psnr_kept=None if doc.get("psnr_kept") is None else float(doc["psnr_kept"]),
-            weight=None if doc.get("weight") is None else float(doc["weight"]),
+            psnr_kept=_opt_float(doc.get("psnr_kept")),
+            weight=_opt_float(doc.get("weight")),
             views=tuple(
-                ViewCheck(str(v["name"]), float(v["index"]), float(v["gain"]), bool(v["kept"])) for v in doc["views"]
+                ViewCheck(str(v["name"]), float(v["index"]), _opt_float(v.get("gain")), bool(v["kept"]))
+                for v in doc["views"]
             ),
             reason=str(doc["reason"]),
             fixer=FixerCheck.from_json(doc["fixer"]) if doc.get("fixer") else None,
         )
+
+
+def _opt_float(value) -> float | None:
+    return None if value is None else float(value)
 
 
 @dataclass(frozen=True)
