@@ -11,7 +11,7 @@ import torch.nn.functional as F
 
 from sparself.capture.io.dense import FixerCheck, SelfCheck, ViewCheck
 from sparself.core import metrics
-from sparself.evaluation.fixing import fixed, held_back_fixer, to_tensor
+from sparself.evaluation.fixing import fixed, fixer_pairs, to_tensor, validated_fixer
 from sparself.model.fixer import Fixer, blend, fix_views, train_fixer
 
 
@@ -81,30 +81,26 @@ class _Render:
         return img
 
 
-def test_on_a_capture_the_fixer_is_trained_on_held_back_inputs_and_used_when_it_beats_both():
+def test_the_fixer_is_tested_leave_one_out_on_held_back_inputs_and_used_when_it_beats_both():
     from planescene import plane_scene, render_plane
-    from sparself.synthesis.synthesize import Synthesized
 
     scene = plane_scene(xs=tuple(0.1 * i for i in range(12)))
-    seen: list[list[str]] = []
-
-    def synth(sc, targets):  # right on the right half only, unsure on the left
-        seen.append([f.name for f in sc.frames])
-        imgs = np.stack([render_plane(t.pose, sc.cameras[t.camera_id]) for t in targets])
-        imgs[:, :, : imgs.shape[2] // 2] = 0.2
-        conf = np.ones(imgs.shape[:3], np.float32)
-        conf[:, :, : imgs.shape[2] // 2] = 0.1
-        return Synthesized(imgs, conf)
-
-    fit = held_back_fixer(scene, scene, _Render(scene, True), synth, steps=200, seed=0)
-    held = {scene.frames[i].name for i in (2, 7)}
-    assert fit.record.held_back == tuple(sorted(held, key=[f.name for f in scene.frames].index))
-    assert not held & set(seen[0])  # the views of the held-back photos were made without them
-    assert fit.record.used and fit.fixer is not None
+    held = [2, 7, 9]
+    imgs = np.stack([render_plane(scene.frames[i].pose, scene.camera(i)) for i in held])
+    imgs[:, :, : imgs.shape[2] // 2] = 0.2  # the views are right on the right half only, unsure on the left
+    conf = np.ones(imgs.shape[:3], np.float32)
+    conf[:, :, : imgs.shape[2] // 2] = 0.1
+    pairs = fixer_pairs(scene, held, _Render(scene, True), imgs, conf)
+    assert pairs.names == tuple(scene.frames[i].name for i in held) and len(pairs.subset([0, 2])) == 2
+    fit = validated_fixer(pairs, steps=200, seed=0)
+    assert fit.record.held_back == pairs.names and fit.record.used and fit.fixer is not None
     assert fit.record.psnr_fixed > max(fit.record.psnr_view, fit.record.psnr_render)
     # a render that is right everywhere is not beaten: the fixer is not used
-    plain = held_back_fixer(scene, scene, _Render(scene, False), synth, steps=200, seed=0)
+    plain = validated_fixer(fixer_pairs(scene, held, _Render(scene, False), imgs, conf), steps=200, seed=0)
     assert not plain.record.used and plain.fixer is None
+    # one pair cannot be tested leave-one-out: no fixer
+    one = validated_fixer(pairs.subset([0]), steps=200, seed=0)
+    assert one.fixer is None and not one.record.used and np.isnan(one.record.psnr_fixed)
 
 
 def test_fixed_views_are_numpy_images_at_the_views_size():

@@ -1,10 +1,10 @@
 """The fixer on a capture (:mod:`sparself.model.fixer`): trained and tested on the held-back input photos,
 used only where its merge beats both the network's views and the reconstruction's render there.
 
-Training pairs are honest by construction: at each held-back input photo, the render comes from the fit on
-the other inputs and the view is synthesized from the other inputs (the network's weights did train on
-every input, as for the weight choice of :mod:`sparself.evaluation.weighting`). Each held-back photo is
-scored by a fixer trained on the others; the fixer that is used is then trained on all of them.
+Training pairs are honest by construction: at each held-back input photo, the render comes from a fit
+without it and the view is synthesized without it (the network's weights did train on every input, as for
+the weight choice of :mod:`sparself.evaluation.weighting`). Each held-back photo is scored by a fixer
+trained on the others; the fixer that is used is then trained on all of them.
 """
 
 from __future__ import annotations
@@ -17,10 +17,9 @@ import torch
 
 from sparself.capture.images import resize_images
 from sparself.capture.io.dense import FixerCheck
-from sparself.capture.scene import Frame, Scene
+from sparself.capture.scene import Scene
 from sparself.core import metrics
-from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
-from sparself.evaluation.weighting import validation_split
+from sparself.evaluation.instruments import renders
 from sparself.model.fixer import Fixer, blend, fix_views, train_fixer
 from sparself.recon import Renderer
 
@@ -49,18 +48,45 @@ def fixed(fixer: Fixer, views: np.ndarray, reference: np.ndarray, confidence: np
     return out.permute(0, 2, 3, 1).numpy().astype(np.float32)
 
 
-def _held_back_pairs(inputs: Scene, small: Scene, base: Renderer, synth: SynthFn) -> tuple[list[int], list]:
-    """(held-back positions, [view, render, confidence, truth] tensors at ``small``'s size)."""
-    val, train = validation_split(inputs)
-    cam = small.camera(val[0])
-    targets = [inputs.frames[i] for i in val]
-    imgs, conf = images_and_confidence(synth(train, targets))
-    views = resize_images(imgs, (cam.width, cam.height))
-    conf = np.ones(views.shape[:3], np.float32) if conf is None else resize_images(conf, (cam.width, cam.height))
-    small_targets: list[Frame] = [small.frames[i] for i in val]
-    rend = renders(base, small, small_targets)
-    truth = np.stack([small.load(i) for i in val])
-    return val, [to_tensor(a) for a in (views, rend, conf, truth)]
+@dataclass
+class FixerPairs:
+    """Training pairs at held-back input photos, each (P, C, h, w) at the check size: the view synthesized
+    without the photo, the render of a fit without it, the view's confidence and the photo itself."""
+
+    names: tuple[str, ...]
+    view: torch.Tensor
+    render: torch.Tensor
+    confidence: torch.Tensor
+    truth: torch.Tensor
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def subset(self, idx: list[int]) -> "FixerPairs":
+        t = (self.view[idx], self.render[idx], self.confidence[idx], self.truth[idx])
+        return FixerPairs(tuple(self.names[i] for i in idx), *t)
+
+    @staticmethod
+    def cat(parts: list["FixerPairs"]) -> "FixerPairs":
+        t = (torch.cat([getattr(q, k) for q in parts]) for k in ("view", "render", "confidence", "truth"))
+        return FixerPairs(tuple(n for q in parts for n in q.names), *t)
+
+    def train(self, steps: int, seed: int) -> Fixer:
+        return train_fixer(self.view, self.render, self.confidence, self.truth, steps=steps, seed=seed)
+
+
+def fixer_pairs(
+    small: Scene, held: list[int], base: Renderer, views: np.ndarray, confidence: np.ndarray | None
+) -> FixerPairs:
+    """The pairs at ``small``'s positions ``held``: ``views`` (P, H, W, 3, any size) and their ``confidence``
+    (P, H, W or None) synthesized there without those photos, renders of ``base`` (a fit without them)."""
+    cam = small.camera(held[0])
+    size = (cam.width, cam.height)
+    v = resize_images(views, size)
+    c = np.ones(v.shape[:3], np.float32) if confidence is None else resize_images(confidence, size)
+    rend = renders(base, small, [small.frames[i] for i in held])
+    truth = np.stack([small.load(i) for i in held])
+    return FixerPairs(tuple(small.frames[i].name for i in held), *(to_tensor(a) for a in (v, rend, c, truth)))
 
 
 def _mean_psnr(pred: torch.Tensor, truth: torch.Tensor) -> float:
@@ -69,29 +95,26 @@ def _mean_psnr(pred: torch.Tensor, truth: torch.Tensor) -> float:
     )
 
 
-def held_back_fixer(inputs: Scene, small: Scene, base: Renderer, synth: SynthFn, steps: int, seed: int) -> FixerFit:
-    """Train and test the fixer on the held-back inputs of ``inputs`` (``small``: the same at the check size;
-    ``base``: the fit without the held-back inputs; ``synth``: the network). Needs two held-back photos."""
-    val, (v, r, c, t) = _held_back_pairs(inputs, small, base, synth)
-    names = tuple(small.frames[i].name for i in val)
-    if len(val) < 2:
-        rec = FixerCheck(names, _mean_psnr(v, t), _mean_psnr(r, t), float("nan"), False)
-        return FixerFit(None, rec)
+def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
+    """Score each pair's photo with a fixer trained on the other pairs (leave-one-out); when those merges
+    beat both the views and the renders (mean PSNR), the fixer trained on every pair. Needs two pairs."""
+    v, r, c, t = pairs.view, pairs.render, pairs.confidence, pairs.truth
+    if len(pairs) < 2:
+        return FixerFit(None, FixerCheck(pairs.names, _mean_psnr(v, t), _mean_psnr(r, t), float("nan"), False))
     loo = []
-    for j in range(len(val)):
-        rest = [k for k in range(len(val)) if k != j]
-        fx = train_fixer(v[rest], r[rest], c[rest], t[rest], steps=steps, seed=seed)
+    for j in range(len(pairs)):
+        fx = pairs.subset([k for k in range(len(pairs)) if k != j]).train(steps, seed)
         with torch.no_grad():
             loo.append(blend(fx, v[j : j + 1], r[j : j + 1], c[j : j + 1]))
     p_view, p_render, p_fixed = _mean_psnr(v, t), _mean_psnr(r, t), _mean_psnr(torch.cat(loo), t)
     used = p_fixed > max(p_view, p_render)
     log.info(
         "fixer on %d held-back inputs: views %.2f dB, render %.2f dB, fixed %.2f dB (%s)",
-        len(val),
+        len(pairs),
         p_view,
         p_render,
         p_fixed,
         "used" if used else "not used: it does not beat both",
     )
-    fixer = train_fixer(v, r, c, t, steps=steps, seed=seed) if used else None
-    return FixerFit(fixer, FixerCheck(names, p_view, p_render, p_fixed, used))
+    fixer = pairs.train(steps, seed) if used else None
+    return FixerFit(fixer, FixerCheck(pairs.names, p_view, p_render, p_fixed, used))

@@ -4,17 +4,19 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
 * **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
   other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
   disagree most, the reconstruction is weakest, and that is where views are planned.
-* **Keep only what pays** (:func:`self_check`): every ``VALIDATION_EVERY``-th interior input is held back
-  (:mod:`sparself.evaluation.weighting`), the views are synthesized again without those photos, and the
-  reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
-  the PSNR change at the held-back inputs nearest to it; views that gain are kept (refitted alone to confirm),
-  and when nothing beats the fit without views, none is written. Only views outside every held-back input's
-  widened gap (between its two neighbours) are checked, planned or kept (:func:`checkable`): a view there
-  would fill a hole twice as wide as any the final fit, which has that input, ever has.
-* **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on the held-back
-  inputs merges each view with the render of the fit without it, pixel by pixel; the merged views replace
-  the network's when they beat both the views and the render on those photos (each scored by a fixer that
-  did not train on it).
+* **Keep only what pays** (:func:`self_check`): in each of two folds (:func:`check_folds`) every
+  ``VALIDATION_EVERY``-th interior input is held back, the fold's views are synthesized again without those
+  photos, and the reconstructor is fitted on the rest without and with them at each synthetic-frame weight.
+  A view's gain is the PSNR change at its fold's held-back inputs nearest to it; views that gain are kept
+  (refitted alone to confirm), and where nothing beats the fit without views, none is written. A view is
+  measured only by a fold that holds back neither of its neighbouring photos (:func:`measuring_fold`): a
+  view between the two neighbours of a held-back photo would fill a hole twice as wide as any the final
+  fit, which has that photo, ever has. The second fold widens the gaps the first leaves alone, so together
+  they measure every gap; a view no fold can measure is neither planned nor kept.
+* **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
+  held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
+  replace the network's when they beat both the views and the render on those photos (each scored by a
+  fixer that did not train on it). A fold's views are fixed by a fixer trained on the other fold's photos.
 * **Per pixel** (:func:`informative_confidence`): where a view agrees with the render of the fit without it
   within ``agree_within``, it adds nothing that reconstruction does not already make, so its confidence is
   lowered there (written as the exported mask, so gsplat/nerfstudio users get the same effect).
@@ -37,14 +39,14 @@ from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.options import check_choices, option
-from sparself.evaluation.fixing import FixerFit, fixed, held_back_fixer
+from sparself.evaluation.config import VALIDATION_EVERY
+from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
     held_back_psnr,
     validation_inputs,
     validation_split,
-    validation_views,
     weight_scores,
 )
 from sparself.model.fixer import Fixer
@@ -151,24 +153,50 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     return preloaded(check_cameras(scene, cfg))
 
 
-def checkable(inputs: Scene, planned: list[Frame]) -> np.ndarray:
+def check_folds(n: int) -> list[list[int]]:
+    """The self-check's folds: positions among n inputs (path order) held back together. The first is
+    :func:`validation_inputs`; the second, every VALIDATION_EVERY-th interior input from the fifth, widens
+    the gaps the first leaves alone, so that between them every gap can be measured (:func:`checkable`).
+
+    >>> check_folds(25)
+    [[2, 7, 12, 17, 22], [4, 9, 14, 19]]
+    >>> check_folds(9)
+    [[2, 7], [4]]
+    """
+    first = validation_inputs(n)
+    second = [p for p in range(4, n - 1, VALIDATION_EVERY) if p not in first]
+    return [first, second] if second else [first]
+
+
+def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None) -> np.ndarray:
     """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
-    the indices of the inputs on either side of it (``inputs`` in path order; :func:`validation_inputs`).
+    the indices of the inputs on either side of it (``inputs`` in path order; ``held``: the held-back
+    positions, default :func:`validation_inputs`).
 
     A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
     hole the final fit never has, so it does not carry over (and it would blur the others' gains there)."""
     idx = [f.index for f in inputs.frames]
-    gaps = [sorted((idx[p - 1], idx[p + 1])) for p in validation_inputs(len(inputs))]
+    held = validation_inputs(len(inputs)) if held is None else held
+    gaps = [sorted((idx[p - 1], idx[p + 1])) for p in held]
     return np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
+
+
+def measuring_fold(inputs: Scene, planned: list[Frame]) -> np.ndarray:
+    """(T,) int: the :func:`check_folds` fold that measures each planned view, the first where it is
+    :func:`checkable` (-1: none)."""
+    out = np.full(len(planned), -1)
+    for k, held in enumerate(check_folds(len(inputs))):
+        out[(out < 0) & checkable(inputs, planned, held)] = k
+    return out
 
 
 def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
     their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses` that are
-    :func:`checkable` (so the self-check can measure every planned view) when there are any."""
+    measured by one of the self-check's folds (:func:`measuring_fold`) when there are any."""
     cands = candidate_poses(inputs, replace(plan, order="capture"))
-    ok = checkable(inputs, [c.frame for c in cands])
+    ok = measuring_fold(inputs, [c.frame for c in cands]) >= 0
     if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
         cands = [c for c, k in zip(cands, ok) if k]
     frames = [c.frame for c in cands]
@@ -202,10 +230,11 @@ def informative_confidence(
     return (conf * factor).astype(np.float32)
 
 
-def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray) -> np.ndarray:
-    """Each planned view's gain: the mean of ``gain`` (one per :func:`validation_inputs` view) over the
-    held-back inputs nearest to it by index (ties: all of them)."""
-    at = np.array([inputs.frames[i].index for i in validation_inputs(len(inputs))])
+def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray, held: list[int] | None = None) -> np.ndarray:
+    """Each planned view's gain: the mean of ``gain`` (one per held-back position of ``held``, default
+    :func:`validation_inputs`) over the held-back inputs nearest to it by index (ties: all of them)."""
+    held = validation_inputs(len(inputs)) if held is None else held
+    at = np.array([inputs.frames[i].index for i in held])
     out = []
     for f in planned:
         d = np.abs(at - f.index)
@@ -214,65 +243,97 @@ def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray) -> np.ndar
 
 
 @dataclass
-class _Fits:
-    """The validation fits' numbers: PSNR at the held-back inputs without views and per weight."""
+class _Fold:
+    """One fold of the self-check: its held-back positions, the fit without them, the planned views it
+    measures (positions into the plan), those views synthesized without the held-back photos (at the check
+    size) with the renders of ``base`` there, and the fixer's pairs at the held-back photos."""
+
+    held: list[int]
+    base: Renderer
+    views: list[int]
+    synthesized: ValidationViews
+    reference: np.ndarray  # (V, h, w, 3)
+    pairs: FixerPairs
+
+
+def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, fit) -> _Fold:
+    """Fit without ``held``; synthesize the fold's views and its held-back photos from the other inputs in one
+    call (the photos become the fixer's pairs)."""
+    _, train = validation_split(inputs, held)
+    base = fit(validation_split(small, held)[1])
+    frames = [planned[i] for i in views]
+    images, conf = images_and_confidence(synth(train, frames + [inputs.frames[i] for i in held]))
+    cam = small.cameras[frames[0].camera_id]
+    size, v = (cam.width, cam.height), len(frames)
+    made = ValidationViews(
+        resize_images(images[:v], size),
+        None if conf is None else resize_images(conf[:v], size),
+        [f.name for f in train.frames],
+    )
+    pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:])
+    return _Fold(held, base, views, made, renders(base, small, frames), pairs)
+
+
+def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
+    """The fixer tested on every fold's pairs (:func:`validated_fixer`); where it is used, each fold's views
+    fixed by a fixer trained on the *other* folds' pairs (its own when there is no other fold), so that no
+    fold's check is scored on photos its fixer learnt from."""
+    if not cfg.fixer:
+        return folds, None
+    fix = validated_fixer(FixerPairs.cat([f.pairs for f in folds]), FIXER_STEPS, cfg.check_seed)
+    if fix.fixer is None:
+        return folds, fix
+    out = []
+    for k, f in enumerate(folds):
+        others = [g.pairs for j, g in enumerate(folds) if j != k]
+        fx = FixerPairs.cat(others).train(FIXER_STEPS, cfg.check_seed) if others else fix.fixer
+        images = fixed(fx, f.synthesized.images, f.reference, f.synthesized.confidence)
+        out.append(replace(f, synthesized=replace(f.synthesized, images=images)))
+    return out, fix
+
+
+@dataclass
+class _Scores:
+    """A fold's held-back PSNR (one per held-back photo): without views, and with its views per weight."""
 
     without: np.ndarray
     by_weight: dict[float, np.ndarray]
-    reference: np.ndarray  # (T, h, w, 3) renders of the fit without views at the planned poses
 
 
-def _validation_views(
-    inputs: Scene, small: Scene, planned: list[Frame], synth: SynthFn, base: Renderer, ref: np.ndarray, cfg
-) -> tuple[ValidationViews, FixerFit | None]:
-    """The planned views synthesized without the held-back inputs, at ``small``'s size, fixed with ``ref`` (the
-    render there of ``base``, the fit without the held-back inputs) when the fixer beats both on those inputs."""
-    cam = small.cameras[planned[0].camera_id]
-    size = (cam.width, cam.height)
-    raw = validation_views(inputs, planned, synth)
-    conf = None if raw.confidence is None else resize_images(raw.confidence, size)
-    vv = ValidationViews(resize_images(raw.images, size), conf, raw.sources)
-    if not cfg.fixer:
-        return vv, None
-    fix = held_back_fixer(inputs, small, base, synth, FIXER_STEPS, cfg.check_seed)
-    if fix.fixer is None:
-        return vv, fix
-    return replace(vv, images=fixed(fix.fixer, vv.images, ref, vv.confidence)), fix
-
-
-def _validation_fits(
-    small: Scene, planned: list[Frame], views: ValidationViews, base: Renderer, ref: np.ndarray, fit, cfg
-) -> tuple[_Fits, ValidationViews]:
-    """Lower the validation views' confidence against ``ref`` (the render of the fit without views, ``base``),
-    fit with them per weight."""
-    views = replace(views, confidence=informative_confidence(views.images, views.confidence, ref, cfg))
-    return _Fits(held_back_psnr(small, base), weight_scores(small, planned, views, cfg.check_weights, fit), ref), views
+def _scores(small: Scene, planned: list[Frame], fold: _Fold, fit, cfg) -> tuple[_Scores, ValidationViews]:
+    """Lower the fold's views' confidence where they agree with its render, then fit with them per weight."""
+    sv = fold.synthesized
+    views = replace(sv, confidence=informative_confidence(sv.images, sv.confidence, fold.reference, cfg))
+    frames = [planned[i] for i in fold.views]
+    by_weight = weight_scores(small, frames, views, cfg.check_weights, fit, fold.held)
+    return _Scores(held_back_psnr(small, fold.base, fold.held), by_weight), views
 
 
 @dataclass
 class _Decision:
-    keep: np.ndarray  # (T,) bool
-    weight: float
-    best: float  # mean held-back PSNR of the chosen set
-    kept_psnr: float | None
-    gains: np.ndarray  # (T,) dB per view
+    keep: np.ndarray  # (V,) bool, the fold's views
+    gains: np.ndarray  # (V,) dB
+    chosen: np.ndarray  # held-back PSNR of the kept views (without views when none is kept)
 
 
-def _decide(small: Scene, planned: list[Frame], views: ValidationViews, fits: _Fits, fit, cfg) -> _Decision:
-    """The weight with the best held-back PSNR; the views that gain there, refitted alone when that is a
-    proper subset, kept when they beat every view together."""
-    means = {w: float(v.mean()) for w, v in fits.by_weight.items()}
-    w = max(means, key=lambda k: means[k])
-    gains = view_gains(small, planned, fits.by_weight[w] - fits.without)
-    keep = gains > cfg.min_gain
-    if not 0 < keep.sum() < len(planned):
-        return _Decision(np.ones(len(planned), bool), w, means[w], None, gains)
-    idx = np.flatnonzero(keep)
-    sub = ValidationViews(views.images[idx], None if views.confidence is None else views.confidence[idx], views.sources)
-    kept_psnr = float(weight_scores(small, [planned[i] for i in idx], sub, [w], fit)[w].mean())
-    if kept_psnr < means[w]:
-        return _Decision(np.ones(len(planned), bool), w, means[w], kept_psnr, gains)
-    return _Decision(keep, w, kept_psnr, kept_psnr, gains)
+def _decide(small: Scene, planned: list[Frame], fold: _Fold, views: ValidationViews, sc: _Scores, w, fit, cfg):
+    """The fold's views that gain at weight ``w``, refitted alone when that is a proper subset (kept when
+    they beat every view together); none when the chosen set does not beat the fit without views."""
+    gains = view_gains(small, [planned[i] for i in fold.views], sc.by_weight[w] - sc.without, fold.held)
+    keep, chosen = gains > cfg.min_gain, sc.by_weight[w]
+    if 0 < keep.sum() < len(keep):
+        idx = np.flatnonzero(keep)
+        conf = None if views.confidence is None else views.confidence[idx]
+        sub = ValidationViews(views.images[idx], conf, views.sources)
+        frames = [planned[fold.views[i]] for i in idx]
+        alone = weight_scores(small, frames, sub, [w], fit, fold.held)[w]
+        if alone.mean() >= chosen.mean():
+            chosen = alone
+        else:
+            keep = np.ones(len(keep), bool)
+    if not keep.any() or chosen.mean() - sc.without.mean() <= cfg.min_gain:
+        return _Decision(np.zeros(len(keep), bool), gains, sc.without)
+    return _Decision(keep, gains, chosen)
 
 
 def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: SelfCheckConfig, plan: str) -> Checked:
@@ -284,44 +345,54 @@ def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: 
     Returns the kept views with their exported confidence and the decision, logged in one line."""
     fit = check_fit(cfg)
     small = at_check_size(inputs, cfg)
-    base = fit(validation_split(small)[1])
-    ok = checkable(small, planned)
-    sub = [planned[i] for i in np.flatnonzero(ok)]
-    ref = renders(base, small, planned)
-    if not sub:
-        return _nothing_checkable(small, planned, final, base, cfg, plan)
-    vv, fix = _validation_views(inputs, small, sub, synth, base, ref[ok], cfg)
-    fits, vv = _validation_fits(small, sub, vv, base, ref[ok], fit, cfg)
-    d = _decide(small, sub, vv, fits, fit, cfg)
-    without = float(fits.without.mean())
-    paid = d.best - without > cfg.min_gain
+    by = measuring_fold(small, planned)
+    held = [h for k, h in enumerate(check_folds(len(small))) if (by == k).any()]
+    if not held:
+        return _nothing_checkable(small, planned, final, fit, cfg, plan)
+    views = [[int(i) for i in np.flatnonzero(by == k)] for k in sorted(set(by[by >= 0]))]
+    folds, fix = _fixed_folds([_fold(inputs, small, planned, h, v, synth, fit) for h, v in zip(held, views)], cfg)
+    scored = [_scores(small, planned, f, fit, cfg) for f in folds]
+    weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
+    w = max(weights, key=lambda k: weights[k])
+    decided = [_decide(small, planned, f, v, s, w, fit, cfg) for f, (s, v) in zip(folds, scored)]
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
-    keep[ok], gains[ok] = d.keep & paid, d.gains
-    record = SelfCheck(
+    for f, d in zip(folds, decided):
+        keep[f.views], gains[f.views] = d.keep, d.gains
+    record = _record(small, planned, folds, [s for s, _ in scored], decided, weights, w, keep, gains, fix, cfg, plan)
+    (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
+    return _written(small, planned, final, keep, record, folds[0], fix, fit, cfg)
+
+
+def _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str) -> SelfCheck:
+    """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos."""
+    without = float(np.concatenate([s.without for s in scores]).mean())
+    best = float(np.concatenate([d.chosen for d in decided]).mean())
+    unchecked = int(np.isnan(gains).sum())
+    return SelfCheck(
         recon=cfg.recon,
         plan=plan,
-        validation=_held_back_names(small),
+        validation=tuple(small.frames[i].name for f in folds for i in f.held),
         psnr_without=without,
-        psnr_by_weight=tuple((w, float(v.mean())) for w, v in fits.by_weight.items()),
-        psnr_kept=d.kept_psnr,
-        weight=d.weight if paid else None,
+        psnr_by_weight=tuple(weights.items()),
+        psnr_kept=best if keep.any() else None,
+        weight=w if keep.any() else None,
         views=_view_checks(planned, gains, keep),
-        reason=_reason(cfg.recon, int(keep.sum()), len(planned), d, without, int((~ok).sum())),
+        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked),
         fixer=None if fix is None else fix.record,
     )
-    (log.info if paid else log.warning)("self-check: %s", record.reason)
+
+
+def _written(small, planned, final, keep, record, first: _Fold, fix: FixerFit | None, fit, cfg) -> Checked:
+    """The kept views as written: fixed with the render of the fit on every input when the fixer is used,
+    their confidence lowered where they agree with the render of the first fold's fit."""
     images, conf = images_and_confidence(final)
     idx = np.flatnonzero(keep)
     fixer = None if fix is None else fix.fixer
     reference = fit(small) if fixer is not None and len(idx) else None
     if fixer is not None and reference is not None:
         images = fixed(fixer, images, renders(reference, small, planned), conf)
-    exported = _exported(images, conf, ref, d.weight, cfg)
+    exported = _exported(images, conf, renders(first.base, small, planned), record.weight or 1.0, cfg)
     return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer, reference)
-
-
-def _held_back_names(small: Scene) -> tuple[str, ...]:
-    return tuple(small.frames[i].name for i in validation_inputs(len(small)))
 
 
 def _view_checks(planned: list[Frame], gains: np.ndarray, keep: np.ndarray) -> tuple[ViewCheck, ...]:
@@ -332,26 +403,18 @@ def _view_checks(planned: list[Frame], gains: np.ndarray, keep: np.ndarray) -> t
     )
 
 
-def _nothing_checkable(small: Scene, planned: list[Frame], final, base: Renderer, cfg, plan: str) -> Checked:
-    """The decision when no planned view can be checked (:func:`checkable`): none is written."""
-    without = float(held_back_psnr(small, base).mean())
+def _nothing_checkable(small: Scene, planned: list[Frame], final, fit, cfg, plan: str) -> Checked:
+    """The decision when no planned view can be checked (:func:`measuring_fold`): none is written."""
+    held = validation_inputs(len(small))
+    without = float(held_back_psnr(small, fit(validation_split(small, held)[1]), held).mean())
     reason = (
         f"none of the {len(planned)} planned views lies where the held-back input photos can measure it (each "
         f"is between the neighbours of one): the capture is written without synthesized views"
     )
     log.warning("self-check: %s", reason)
-    gains = np.full(len(planned), np.nan)
-    record = SelfCheck(
-        cfg.recon,
-        plan,
-        _held_back_names(small),
-        without,
-        (),
-        None,
-        None,
-        _view_checks(planned, gains, gains > 0),
-        reason,
-    )
+    views = _view_checks(planned, np.full(len(planned), np.nan), np.zeros(len(planned), bool))
+    names = tuple(small.frames[i].name for i in held)
+    record = SelfCheck(cfg.recon, plan, names, without, (), None, None, views, reason)
     images, _ = images_and_confidence(final)
     return Checked([], images[:0], np.zeros(images[:0].shape[:3], np.float32), record)
 
@@ -383,14 +446,14 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
 
 
-def _reason(recon: str, kept: int, planned: int, d: _Decision, without: float, unchecked: int) -> str:
+def _reason(recon: str, kept: int, planned: int, w: float, best: float, without: float, unchecked: int) -> str:
     aside = f" ({unchecked} planned between the neighbours of a held-back photo could not be checked)" * (unchecked > 0)
     if kept == 0:
         return (
-            f"no synthesized view improves the {recon} fit on the held-back input photos (best {d.best:.2f} dB, "
-            f"{without:.2f} dB without views){aside}: the capture is written without synthesized views"
+            f"no synthesized view improves the {recon} fit on the held-back input photos ({without:.2f} dB without "
+            f"views){aside}: the capture is written without synthesized views"
         )
     return (
-        f"kept {kept} of {planned} synthesized views at weight {d.weight:g}: the {recon} fit renders the "
-        f"held-back input photos at {d.best:.2f} dB with them, {without:.2f} dB without{aside}"
+        f"kept {kept} of {planned} synthesized views at weight {w:g}: the {recon} fit renders the "
+        f"held-back input photos at {best:.2f} dB with them, {without:.2f} dB without{aside}"
     )

@@ -35,9 +35,10 @@ def validation_inputs(n: int) -> list[int]:
     return list(range(2, n - 1, VALIDATION_EVERY)) or ([n // 2] if n >= 3 else [])
 
 
-def validation_split(inputs: Scene) -> tuple[list[int], Scene]:
-    """(the :func:`validation_inputs` positions, the inputs without them) for choosing the weight."""
-    val = validation_inputs(len(inputs))
+def validation_split(inputs: Scene, held: Sequence[int] | None = None) -> tuple[list[int], Scene]:
+    """(the held-back positions, the inputs without them) for choosing the weight; ``held`` defaults to
+    :func:`validation_inputs`."""
+    val = validation_inputs(len(inputs)) if held is None else list(held)
     if not val:
         raise ConfigError(f"{len(inputs)} input views leave none to choose the synthetic-frame weight on")
     return val, inputs.without(val)
@@ -53,36 +54,45 @@ class ValidationViews:
     sources: list[str]
 
 
-def validation_views(inputs: Scene, planned: list[Frame], synth: SynthFn) -> ValidationViews:
+def validation_views(
+    inputs: Scene, planned: list[Frame], synth: SynthFn, held: Sequence[int] | None = None
+) -> ValidationViews:
     """The planned views synthesized by ``synth`` from the inputs minus the held-back ones, so no pixel of a
     held-back view reaches the validation fits through them (the network's weights, trained on all inputs,
-    did see them: this removes the leak through the images, not through training)."""
-    _, train = validation_split(inputs)
+    did see them: this removes the leak through the images, not through training). ``held``: as in
+    :func:`validation_split`."""
+    _, train = validation_split(inputs, held)
     images, confidence = images_and_confidence(synth(train, planned))
     return ValidationViews(images, confidence, [f.name for f in train.frames])
 
 
-def held_back_psnr(inputs: Scene, renderer: Renderer) -> np.ndarray:
-    """PSNR of ``renderer`` at each :func:`validation_inputs` view of ``inputs`` (their own photos), in order."""
-    val = validation_inputs(len(inputs))
+def held_back_psnr(inputs: Scene, renderer: Renderer, held: Sequence[int] | None = None) -> np.ndarray:
+    """PSNR of ``renderer`` at each held-back view of ``inputs`` (their own photos), in order; ``held``: as in
+    :func:`validation_split`."""
+    val = validation_inputs(len(inputs)) if held is None else list(held)
     return np.array(
         [metrics.psnr(renderer.render(inputs.frames[i].pose, inputs.camera(i)), inputs.load(i)) for i in val]
     )
 
 
 def weight_scores(
-    inputs: Scene, planned: list[Frame], views: ValidationViews, grid: Sequence[float], fit: Callable[[Scene], Renderer]
+    inputs: Scene,
+    planned: list[Frame],
+    views: ValidationViews,
+    grid: Sequence[float],
+    fit: Callable[[Scene], Renderer],
+    held: Sequence[int] | None = None,
 ) -> dict[float, np.ndarray]:
     """For each synthetic-frame weight of ``grid``: the :func:`held_back_psnr` of a fit on the inputs minus
     :func:`validation_inputs` (+ the planned ``views`` at that weight). Reads the inputs' pixels only, never a
     held-out photo; ``views`` must be synthesized without the held-back inputs (:func:`validation_views`), or
-    their pixels would favour larger weights."""
-    val, train = validation_split(inputs)
+    their pixels would favour larger weights. ``held``: as in :func:`validation_split`."""
+    val, train = validation_split(inputs, held)
     leaked = sorted(set(views.sources) & {inputs.frames[i].name for i in val})
     if leaked:
         raise ValueError(f"validation views synthesized from held-back input(s) {leaked}")
     return {
-        float(w): held_back_psnr(inputs, fit(weighted_scene(train, planned, views.images, views.confidence, w)))
+        float(w): held_back_psnr(inputs, fit(weighted_scene(train, planned, views.images, views.confidence, w)), val)
         for w in grid
     }
 

@@ -85,11 +85,11 @@ class SelfCheck:
     """The densify self-check's decision and the numbers it was made on (``sparself.json``, key ``selfcheck``).
 
     recon: the reconstructor the views were checked with; plan: how the poses were planned (weak, paper);
-    validation: the held-back input photos scored; psnr_without: their mean PSNR fitted without synthesized
-    views; psnr_by_weight: (synthetic-frame weight, mean PSNR) with every planned view; psnr_kept: with the
-    kept views only (None when that was not fitted); weight: the chosen synthetic-frame weight (None: no view
-    kept); views: every planned view; reason: the decision in words; fixer: the fixer's test (None: not
-    tried)."""
+    validation: the held-back input photos scored, fold after fold; psnr_without: their mean PSNR fitted
+    without synthesized views; psnr_by_weight: (synthetic-frame weight, mean PSNR) with every measured view
+    (each fold's fits with its own views); psnr_kept: with the kept views only (None: none kept); weight: the
+    chosen synthetic-frame weight (None: no view kept); views: every planned view; reason: the decision in
+    words; fixer: the fixer's test (None: not tried)."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
