@@ -188,7 +188,8 @@ def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
             v = np.exp(-(((pose.center[0] - 0.42) / 0.05) ** 2)) if self.bump else 0.0
             return np.full((cam.height, cam.width, 3), v, np.float32)
 
-    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), lambda sc: Flat(sc.frames[0].name == "src1"))
+    fits = lambda scenes: [Flat(sc.frames[0].name == "src1") for sc in scenes]  # noqa: E731
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), fits)
     assert [f.index for f in picked] == [3.75, 4.25, 7.2]  # nearest x = 0.42 in gaps 3-4 and 4-5; the end
     cands = candidate_poses(scene, PlanConfig(n_mid=2, n_extra=1))
     assert len(cands) == 7 * 3 + 2 * 2 and sum(c.beyond for c in cands) == 4
@@ -246,7 +247,7 @@ def test_the_weak_plan_avoids_the_gaps_the_check_widens():
             v = np.exp(-(((pose.center[0] - 0.2) / 0.15) ** 2)) if self.on else 0.0
             return np.full((cam.height, cam.width, 3), v, np.float32)
 
-    fit = lambda sc: Bump(sc.frames[0].name == "src1")  # noqa: E731
+    fit = lambda scenes: [Bump(sc.frames[0].name == "src1") for sc in scenes]  # noqa: E731
     picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), fit)
     assert [f.index for f in picked] == [1.75, 2.25]  # beside held-back input 2: measured by the second fold
     assert measuring_fold(scene, picked).tolist() == [1, 1]

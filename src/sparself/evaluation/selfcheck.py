@@ -28,6 +28,7 @@ with each other, so they need not be the user's final fit, only alike.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass, replace
 from typing import Callable, Literal
 
@@ -47,10 +48,11 @@ from sparself.evaluation.weighting import (
     held_back_psnr,
     validation_inputs,
     validation_split,
-    weight_scores,
+    weight_scenes,
 )
 from sparself.model.fixer import Fixer
-from sparself.recon import Renderer, get_reconstructor
+from sparself.recon import Renderer
+from sparself.recon.pool import FitPool
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
 from sparself.synthesis.synthesize import Synthesized
 
@@ -92,6 +94,11 @@ class SelfCheckConfig:
     )
     agree_weight: float = option(0.3, "the factor the confidence of such agreeing pixels is multiplied by")
     check_seed: int = option(0, "seed of the self-check's fits")
+    check_workers: int | None = option(
+        None,
+        "processes the self-check's fits run in at once (auto: one per core, at most 2, for the CPU 3DGS, "
+        "which fits on one core; 1 otherwise)",
+    )
     fixer: bool = option(
         True,
         "merge each view with the render of the fit without it, pixel by pixel, by a small network trained on "
@@ -100,6 +107,8 @@ class SelfCheckConfig:
 
     def validate(self) -> None:
         check_choices(self)
+        if self.check_workers is not None and self.check_workers < 1:
+            raise ConfigError(f"check_workers must be >= 1, got {self.check_workers}")
         if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
             raise ConfigError(
                 f"check_size must be >= 8 and check_steps >= 1, got {self.check_size}, {self.check_steps}"
@@ -125,15 +134,31 @@ class Checked:
     reference: Renderer | None = None  # the fit on all inputs at the check size whose renders it merged in
 
 
-def check_fit(cfg: SelfCheckConfig) -> Callable[[Scene], Renderer]:
-    """fit(scene) -> renderer for ``cfg.recon`` with the self-check's steps and seed."""
-    fit = get_reconstructor(cfg.recon)
+FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
+
+
+def _check_settings(cfg: SelfCheckConfig) -> dict:
     kw: dict = {} if cfg.recon == "mpi" else {"seed": cfg.check_seed, "progress": False}
     if cfg.check_steps is not None and cfg.recon != "mpi":
         kw["steps"] = cfg.check_steps
         if cfg.recon == "3dgs" and _cpu_splatting():
             kw["min_steps_per_view"] = 0  # the CPU path raises steps to 60 per view otherwise
-    return lambda sc: fit(sc, **kw)
+    return kw
+
+
+def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
+    """fits(scenes) -> renderers for ``cfg.recon`` with the self-check's steps and seed, run by ``pool``
+    (default: one after the other in this process)."""
+    kw, pool = _check_settings(cfg), pool or FitPool(1)
+    return lambda scenes: pool.fit(cfg.recon, scenes, **kw)
+
+
+def check_workers(cfg: SelfCheckConfig) -> int:
+    """How many fits the self-check runs at once (``cfg.check_workers``; auto: see its help)."""
+    if cfg.check_workers is not None:
+        return cfg.check_workers
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return min(2, cores) if cfg.recon == "3dgs" and _cpu_splatting() else 1
 
 
 def _cpu_splatting() -> bool:
@@ -190,7 +215,7 @@ def measuring_fold(inputs: Scene, planned: list[Frame]) -> np.ndarray:
     return out
 
 
-def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Renderer]) -> list[Frame]:
+def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany) -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
     their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses` that are
@@ -200,7 +225,8 @@ def weakest_plan(inputs: Scene, plan: PlanConfig, fit: Callable[[Scene], Rendere
     if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
         cands = [c for c, k in zip(cands, ok) if k]
     frames = [c.frame for c in cands]
-    a, b = (renders(fit(inputs.subset(range(k, len(inputs), 2))), inputs, frames) for k in (0, 1))
+    halves = fits([inputs.subset(range(k, len(inputs), 2)) for k in (0, 1)])
+    a, b = (renders(r, inputs, frames) for r in halves)
     weak = np.abs(a - b).mean(axis=(1, 2, 3))
     picked = pick_poses(cands, weak, plan)
     log.info(
@@ -256,11 +282,10 @@ class _Fold:
     pairs: FixerPairs
 
 
-def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, fit) -> _Fold:
-    """Fit without ``held``; synthesize the fold's views and its held-back photos from the other inputs in one
-    call (the photos become the fixer's pairs)."""
+def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, base) -> _Fold:
+    """The fold with ``base`` (the fit without ``held``): its views and its held-back photos synthesized from
+    the other inputs in one call (the photos become the fixer's pairs)."""
     _, train = validation_split(inputs, held)
-    base = fit(validation_split(small, held)[1])
     frames = [planned[i] for i in views]
     images, conf = images_and_confidence(synth(train, frames + [inputs.frames[i] for i in held]))
     cam = small.cameras[frames[0].camera_id]
@@ -300,13 +325,27 @@ class _Scores:
     by_weight: dict[float, np.ndarray]
 
 
-def _scores(small: Scene, planned: list[Frame], fold: _Fold, fit, cfg) -> tuple[_Scores, ValidationViews]:
-    """Lower the fold's views' confidence where they agree with its render, then fit with them per weight."""
-    sv = fold.synthesized
-    views = replace(sv, confidence=informative_confidence(sv.images, sv.confidence, fold.reference, cfg))
-    frames = [planned[i] for i in fold.views]
-    by_weight = weight_scores(small, frames, views, cfg.check_weights, fit, fold.held)
-    return _Scores(held_back_psnr(small, fold.base, fold.held), by_weight), views
+def _scores(small: Scene, planned: list[Frame], folds: list[_Fold], fits: FitMany, cfg):
+    """Each fold's views with their confidence lowered where they agree with its render, and every fold's fits
+    with its views at each weight, all fitted at once: [(scores, lowered views)] per fold."""
+    lowered = [
+        replace(
+            f.synthesized,
+            confidence=informative_confidence(f.synthesized.images, f.synthesized.confidence, f.reference, cfg),
+        )
+        for f in folds
+    ]
+    scenes = [
+        sc
+        for f, v in zip(folds, lowered)
+        for sc in weight_scenes(small, [planned[i] for i in f.views], v, cfg.check_weights, f.held)
+    ]
+    fitted = iter(fits(scenes))
+    out = []
+    for f, v in zip(folds, lowered):
+        by_weight = {float(w): held_back_psnr(small, next(fitted), f.held) for w in cfg.check_weights}
+        out.append((_Scores(held_back_psnr(small, f.base, f.held), by_weight), v))
+    return out
 
 
 @dataclass
@@ -316,17 +355,31 @@ class _Decision:
     chosen: np.ndarray  # held-back PSNR of the kept views (without views when none is kept)
 
 
-def _decide(small: Scene, planned: list[Frame], fold: _Fold, views: ValidationViews, sc: _Scores, w, fit, cfg):
-    """The fold's views that gain at weight ``w``, refitted alone when that is a proper subset (kept when
-    they beat every view together); none when the chosen set does not beat the fit without views."""
-    gains = view_gains(small, [planned[i] for i in fold.views], sc.by_weight[w] - sc.without, fold.held)
-    keep, chosen = gains > cfg.min_gain, sc.by_weight[w]
-    if 0 < keep.sum() < len(keep):
-        idx = np.flatnonzero(keep)
-        conf = None if views.confidence is None else views.confidence[idx]
-        sub = ValidationViews(views.images[idx], conf, views.sources)
-        frames = [planned[fold.views[i]] for i in idx]
-        alone = weight_scores(small, frames, sub, [w], fit, fold.held)[w]
+def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: float, fits: FitMany, cfg):
+    """Per fold, the views that gain at weight ``w``; where that is a proper subset it is refitted alone (all
+    such refits at once) and kept when it beats every view together (:func:`_settle`)."""
+    gains = [
+        view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.held)
+        for f, (s, _) in zip(folds, scored)
+    ]
+    keeps = [g > cfg.min_gain for g in gains]
+    partial = [k for k, keep in enumerate(keeps) if 0 < keep.sum() < len(keep)]
+    scenes = [_kept_scene(small, planned, folds[k], scored[k][1], keeps[k], w) for k in partial]
+    alone = {k: held_back_psnr(small, r, folds[k].held) for k, r in zip(partial, fits(scenes))}
+    return [_settle(keeps[k], gains[k], scored[k][0], w, alone.get(k), cfg) for k in range(len(folds))]
+
+
+def _kept_scene(small: Scene, planned: list[Frame], fold: _Fold, views: ValidationViews, keep, w: float) -> Scene:
+    idx = np.flatnonzero(keep)
+    sub = ValidationViews(views.images[idx], None if views.confidence is None else views.confidence[idx], views.sources)
+    return weight_scenes(small, [planned[fold.views[i]] for i in idx], sub, [w], fold.held)[0]
+
+
+def _settle(keep: np.ndarray, gains: np.ndarray, sc: _Scores, w: float, alone: np.ndarray | None, cfg) -> _Decision:
+    """The fold's decision: the gaining views when their fit alone (``alone``) beats every view together,
+    else every view; none when that does not beat the fit without views."""
+    chosen = sc.by_weight[w]
+    if alone is not None:
         if alone.mean() >= chosen.mean():
             chosen = alone
         else:
@@ -336,31 +389,42 @@ def _decide(small: Scene, planned: list[Frame], fold: _Fold, views: ValidationVi
     return _Decision(keep, gains, chosen)
 
 
-def self_check(inputs: Scene, planned: list[Frame], synth: SynthFn, final, cfg: SelfCheckConfig, plan: str) -> Checked:
+def self_check(
+    inputs: Scene,
+    planned: list[Frame],
+    synth: SynthFn,
+    final,
+    cfg: SelfCheckConfig,
+    plan: str,
+    fits: FitMany | None = None,
+) -> Checked:
     """Keep the planned views that pay (see the module docstring).
 
     inputs: the N input photos (any size, in path order, with sparse points for 3DGS); planned: the views'
     frames; synth: the network ``(scene, targets) -> Synthesized``; final: what it made from all inputs (the
-    views that would be written: a Synthesized or (T, H, W, 3) images); plan: how the poses were planned.
+    views that would be written: a Synthesized or (T, H, W, 3) images); plan: how the poses were planned;
+    fits: how the fits run (default: :func:`check_fits`, one after the other).
     Returns the kept views with their exported confidence and the decision, logged in one line."""
-    fit = check_fit(cfg)
+    fits = fits or check_fits(cfg)
     small = at_check_size(inputs, cfg)
     by = measuring_fold(small, planned)
     held = [h for k, h in enumerate(check_folds(len(small))) if (by == k).any()]
     if not held:
-        return _nothing_checkable(small, planned, final, fit, cfg, plan)
+        return _nothing_checkable(small, planned, final, fits, cfg, plan)
     views = [[int(i) for i in np.flatnonzero(by == k)] for k in sorted(set(by[by >= 0]))]
-    folds, fix = _fixed_folds([_fold(inputs, small, planned, h, v, synth, fit) for h, v in zip(held, views)], cfg)
-    scored = [_scores(small, planned, f, fit, cfg) for f in folds]
+    bases = fits([validation_split(small, h)[1] for h in held])
+    made = [_fold(inputs, small, planned, h, v, synth, b) for h, v, b in zip(held, views, bases)]
+    folds, fix = _fixed_folds(made, cfg)
+    scored = _scores(small, planned, folds, fits, cfg)
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
-    decided = [_decide(small, planned, f, v, s, w, fit, cfg) for f, (s, v) in zip(folds, scored)]
+    decided = _decide(small, planned, folds, scored, w, fits, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
     record = _record(small, planned, folds, [s for s, _ in scored], decided, weights, w, keep, gains, fix, cfg, plan)
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
-    return _written(small, planned, final, keep, record, folds[0], fix, fit, cfg)
+    return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
 
 
 def _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str) -> SelfCheck:
@@ -382,13 +446,13 @@ def _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix
     )
 
 
-def _written(small, planned, final, keep, record, first: _Fold, fix: FixerFit | None, fit, cfg) -> Checked:
+def _written(small, planned, final, keep, record, first: _Fold, fix: FixerFit | None, fits: FitMany, cfg) -> Checked:
     """The kept views as written: fixed with the render of the fit on every input when the fixer is used,
     their confidence lowered where they agree with the render of the first fold's fit."""
     images, conf = images_and_confidence(final)
     idx = np.flatnonzero(keep)
     fixer = None if fix is None else fix.fixer
-    reference = fit(small) if fixer is not None and len(idx) else None
+    reference = fits([small])[0] if fixer is not None and len(idx) else None
     if fixer is not None and reference is not None:
         images = fixed(fixer, images, renders(reference, small, planned), conf)
     exported = _exported(images, conf, renders(first.base, small, planned), record.weight or 1.0, cfg)
@@ -403,10 +467,10 @@ def _view_checks(planned: list[Frame], gains: np.ndarray, keep: np.ndarray) -> t
     )
 
 
-def _nothing_checkable(small: Scene, planned: list[Frame], final, fit, cfg, plan: str) -> Checked:
+def _nothing_checkable(small: Scene, planned: list[Frame], final, fits: FitMany, cfg, plan: str) -> Checked:
     """The decision when no planned view can be checked (:func:`measuring_fold`): none is written."""
     held = validation_inputs(len(small))
-    without = float(held_back_psnr(small, fit(validation_split(small, held)[1]), held).mean())
+    without = float(held_back_psnr(small, fits([validation_split(small, held)[1]])[0], held).mean())
     reason = (
         f"none of the {len(planned)} planned views lies where the held-back input photos can measure it (each "
         f"is between the neighbours of one): the capture is written without synthesized views"
@@ -431,9 +495,11 @@ def checked_views(
     for every planned frame). The poses are ``paper`` (the paper's plan) or, with ``cfg.plan_mode`` weak,
     :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
     :func:`self_check` on ``inputs``."""
-    targets = weakest_plan(at_check_size(inputs, cfg), plan, check_fit(cfg)) if cfg.plan_mode == "weak" else paper
-    final = synth(inputs if sources is None else sources, targets)
-    return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode), final
+    with FitPool(check_workers(cfg)) as pool:
+        fits = check_fits(cfg, pool)
+        targets = weakest_plan(at_check_size(inputs, cfg), plan, fits) if cfg.plan_mode == "weak" else paper
+        final = synth(inputs if sources is None else sources, targets)
+        return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits), final
 
 
 def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:

@@ -75,6 +75,23 @@ def held_back_psnr(inputs: Scene, renderer: Renderer, held: Sequence[int] | None
     )
 
 
+def weight_scenes(
+    inputs: Scene,
+    planned: list[Frame],
+    views: ValidationViews,
+    grid: Sequence[float],
+    held: Sequence[int] | None = None,
+) -> list[Scene]:
+    """For each synthetic-frame weight of ``grid``: the inputs minus the held-back ones (``held``: as in
+    :func:`validation_split`) + the planned ``views`` at that weight. ``views`` must be synthesized without
+    the held-back inputs (:func:`validation_views`), or their pixels would favour larger weights: refused."""
+    val, train = validation_split(inputs, held)
+    leaked = sorted(set(views.sources) & {inputs.frames[i].name for i in val})
+    if leaked:
+        raise ValueError(f"validation views synthesized from held-back input(s) {leaked}")
+    return [weighted_scene(train, planned, views.images, views.confidence, w) for w in grid]
+
+
 def weight_scores(
     inputs: Scene,
     planned: list[Frame],
@@ -83,18 +100,11 @@ def weight_scores(
     fit: Callable[[Scene], Renderer],
     held: Sequence[int] | None = None,
 ) -> dict[float, np.ndarray]:
-    """For each synthetic-frame weight of ``grid``: the :func:`held_back_psnr` of a fit on the inputs minus
-    :func:`validation_inputs` (+ the planned ``views`` at that weight). Reads the inputs' pixels only, never a
-    held-out photo; ``views`` must be synthesized without the held-back inputs (:func:`validation_views`), or
-    their pixels would favour larger weights. ``held``: as in :func:`validation_split`."""
-    val, train = validation_split(inputs, held)
-    leaked = sorted(set(views.sources) & {inputs.frames[i].name for i in val})
-    if leaked:
-        raise ValueError(f"validation views synthesized from held-back input(s) {leaked}")
-    return {
-        float(w): held_back_psnr(inputs, fit(weighted_scene(train, planned, views.images, views.confidence, w)), val)
-        for w in grid
-    }
+    """For each synthetic-frame weight of ``grid``: the :func:`held_back_psnr` of a fit on
+    :func:`weight_scenes`' scene. Reads the inputs' pixels only, never a held-out photo."""
+    val, _ = validation_split(inputs, held)
+    scenes = weight_scenes(inputs, planned, views, grid, val)
+    return {float(w): held_back_psnr(inputs, fit(sc), val) for w, sc in zip(grid, scenes)}
 
 
 def choose_weight(

@@ -1,0 +1,63 @@
+"""Several fits at once. The CPU 3DGS uses one core per fit, so on a machine with more cores independent fits
+run in worker processes, one per core; a pool of one worker fits in this process, one scene after the
+other (the plain path, and the reference the other must equal: each fit is seeded and single-threaded)."""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import signal
+from concurrent.futures import Future, ProcessPoolExecutor
+from typing import Any
+
+from sparself.capture.scene import Scene
+from sparself.recon import Renderer, get_reconstructor
+
+log = logging.getLogger(__name__)
+
+
+def _ignore_interrupts() -> None:
+    # Ctrl-C reaches the whole process group: the parent stops the workers itself, without their tracebacks
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def _fit(name: str, scene: Scene, cfg: dict[str, Any]) -> Renderer:
+    return get_reconstructor(name)(scene, **cfg)
+
+
+class FitPool:
+    """``with FitPool(workers) as pool: pool.fit("3dgs", scenes, seed=0)`` -> one renderer per scene.
+
+    workers > 1 starts that many processes (spawned: a fresh interpreter, no forked torch threads) when the
+    block is entered; leaving it by an exception (Ctrl-C included) stops them at once. A renderer comes back
+    pickled, so a reconstructor fitted this way must be picklable (the CPU 3DGS is)."""
+
+    def __init__(self, workers: int = 1) -> None:
+        self.workers = max(1, int(workers))
+        self._pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> "FitPool":
+        if self.workers > 1:
+            ctx = multiprocessing.get_context("spawn")
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_ignore_interrupts)
+        return self
+
+    def __exit__(self, kind, value, tb) -> None:
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        running = list(getattr(pool, "_processes", {}).values())  # private, but the only handle on them
+        pool.shutdown(wait=kind is None, cancel_futures=True)
+        if kind is not None:
+            for p in running:
+                p.terminate()
+
+    def fit(self, name: str, scenes: list[Scene], **cfg) -> list[Renderer]:
+        """Fit reconstructor ``name`` with keyword settings ``cfg`` on each scene; in order."""
+        if self._pool is None or len(scenes) < 2:
+            fit = get_reconstructor(name)
+            return [fit(sc, **cfg) for sc in scenes]
+        futures: list[Future] = [self._pool.submit(_fit, name, sc, cfg) for sc in scenes]
+        return [f.result() for f in futures]

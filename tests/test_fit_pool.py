@@ -1,0 +1,57 @@
+"""Fits run side by side in worker processes give exactly the renderers fitted one after the other here,
+and a pool left by an exception stops its workers."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from planescene import DEPTH, plane_scene
+from sparself.evaluation.selfcheck import SelfCheckConfig, check_workers
+from sparself.recon.pool import FitPool
+
+SPLAT = dict(steps=20, init_points=150, max_gaussians=300, progress=False, seed=1, min_steps_per_view=0)
+
+
+def _scenes():
+    out = []
+    for k in range(3):
+        sc = plane_scene(xs=tuple(0.1 * i + 0.05 * k for i in range(3)))
+        rng = np.random.default_rng(k)
+        sc.points = np.stack([rng.uniform(-0.7, 0.9, 200), rng.uniform(-0.5, 0.5, 200), np.full(200, DEPTH)], 1)
+        out.append(sc)
+    return out
+
+
+def test_workers_fit_exactly_what_this_process_fits():
+    scenes = _scenes()
+    with FitPool(1) as here:
+        a = here.fit("splat", scenes, **SPLAT)
+    with FitPool(2) as two:
+        b = two.fit("splat", scenes, **SPLAT)
+    for sc, r, q in zip(scenes, a, b):
+        cam, pose = sc.cameras[1], sc.frames[1].pose
+        np.testing.assert_array_equal(r.render(pose, cam), q.render(pose, cam))
+    assert len({float(r.render(scenes[0].frames[0].pose, scenes[0].cameras[1]).mean()) for r in a}) == 3
+
+
+def test_an_exception_in_the_block_stops_the_workers_at_once():
+    with pytest.raises(KeyboardInterrupt):
+        with FitPool(2) as pool:
+            assert pool._pool is not None
+            pool._pool.submit(time.sleep, 60)  # a long fit running when Ctrl-C comes
+            time.sleep(0.5)
+            procs = list(pool._pool._processes.values())
+            raise KeyboardInterrupt
+    deadline = time.time() + 10
+    while any(p.is_alive() for p in procs) and time.time() < deadline:
+        time.sleep(0.1)
+    assert procs and not any(p.is_alive() for p in procs)
+
+
+def test_the_self_check_runs_fits_side_by_side_only_for_the_one_core_cpu_3dgs():
+    assert check_workers(SelfCheckConfig(recon="mpi")) == 1 and check_workers(SelfCheckConfig(recon="nerf")) == 1
+    assert check_workers(SelfCheckConfig(recon="mpi", check_workers=3)) == 3
+    assert 1 <= check_workers(SelfCheckConfig(recon="3dgs")) <= 2
