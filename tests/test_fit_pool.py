@@ -10,7 +10,7 @@ import pytest
 
 from planescene import DEPTH, plane_scene
 from sparself.evaluation.selfcheck import SelfCheckConfig, check_workers
-from sparself.recon.pool import FitPool
+from sparself.recon.pool import FitPool, Fitter
 
 SPLAT = dict(steps=20, init_points=150, max_gaussians=300, progress=False, seed=1, min_steps_per_view=0)
 
@@ -27,10 +27,9 @@ def _scenes():
 
 def test_workers_fit_exactly_what_this_process_fits():
     scenes = _scenes()
-    with FitPool(1) as here:
-        a = here.fit("splat", scenes, **SPLAT)
+    a = [Fitter("splat", SPLAT)(sc) for sc in scenes]  # one after the other, here
     with FitPool(2) as two:
-        b = two.fit("splat", scenes, **SPLAT)
+        b = Fitter("splat", SPLAT).many(scenes, two)
     for sc, r, q in zip(scenes, a, b):
         cam, pose = sc.cameras[1], sc.frames[1].pose
         np.testing.assert_array_equal(r.render(pose, cam), q.render(pose, cam))

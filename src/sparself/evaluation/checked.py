@@ -16,7 +16,7 @@ from typing import Callable, Literal
 
 from sparself.capture.scene import Scene
 from sparself.evaluation.fixing import fixed
-from sparself.evaluation.instruments import renders, with_images
+from sparself.evaluation.instruments import fit_each, renders, with_images
 from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, check_cameras, checked_views
@@ -66,13 +66,16 @@ def checked_fits(
         return
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
     sets, views = SeededSets(), SeededSets()
-    for k, synth in enumerate(ev.net_synths):
+    done = [checked_views(ev.inputs, ev.planned, plan, synth, cfg)[1] for synth in ev.net_synths]
+    kept = [k for k, c in enumerate(done) if c.frames]
+    scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
+    fitted = dict(zip(kept, fit_each(fit, scenes)))
+    for k, checked in enumerate(done):
         seed = ev.cfg.first_seed + k
-        _, checked, _ = checked_views(ev.inputs, ev.planned, plan, synth, cfg)
         label = f"{rname} ({NETWORK_CHECKED} seed {seed})"
-        if checked.frames:
-            sc = with_images(ev.inputs, checked.frames, checked.images, checked.confidence)
-            scored = ev.score(renders(fit(sc), ev.full, ev.targets), label, ev.scored, seed=seed, views=len(sc))
+        if k in fitted:
+            views_n = len(ev.inputs) + len(checked.frames)
+            scored = ev.score(renders(fitted[k], ev.full, ev.targets), label, ev.scored, seed=seed, views=views_n)
         else:  # nothing kept: the capture is the N photos, and so is its fit
             scored = replace(base, seed=seed)
         scored.decision = checked.record

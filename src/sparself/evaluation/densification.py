@@ -13,6 +13,7 @@ from tqdm.auto import tqdm
 from sparself.capture.scene import Scene
 from sparself.evaluation.checked import checked_fits
 from sparself.evaluation.instruments import (
+    fit_each,
     reconstructor,
     renders,
     with_images,
@@ -68,10 +69,11 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
     """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
     (which keeps what was done if a fit fails: the network's seeds fitted so far, unsummarised)."""
     net, base = SeededSets(summarized=False), None
-    for key, seed, sc in tqdm(
-        densified_scenes(ev), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
+    runs = densified_scenes(ev)
+    fitted = fit_each(fit, [sc for _, _, sc in runs])
+    for (key, seed, sc), renderer in tqdm(
+        zip(runs, fitted), total=len(runs), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
     ):
-        renderer = fit(sc)
         if not entry.fitted:
             entry.fitted, entry.backend = True, getattr(renderer, "backend", None)
         imgs = render_targets(ev, renderer)

@@ -8,7 +8,7 @@ import subprocess
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from sparself.core.errors import ConfigError, InputError
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
 from sparself.recon import Renderer, get_reconstructor
+from sparself.recon.pool import Fitter
 from sparself.synthesis.baselines import BASELINES
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import train
@@ -102,12 +103,12 @@ def baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
     return {n: BASELINES[n] for n in names}
 
 
-def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], Renderer]:
+def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
-    the evaluation's settings applied."""
+    the evaluation's settings applied; ``.many(scenes)`` fits several side by side where that pays."""
     from sparself.recon.gsplat import available
 
-    fit = get_reconstructor(name)
+    get_reconstructor(name)  # an unknown name fails here, before any fit
     base = dict(seed=cfg.recon_seed, progress=cfg.progress)
     splat = dict(base)
     if cfg.splat_steps_per_view is not None:
@@ -118,7 +119,14 @@ def reconstructor(name: str, cfg: EvalConfig) -> Callable[[Scene], Renderer]:
         "3dgs": base if available()[0] else splat,  # the CPU path's setting: gsplat keeps its recipe
         "splat": splat,
     }.get(name, {})
-    return lambda sc: fit(sc, **kw)
+    return Fitter(name, kw)
+
+
+def fit_each(fit: Callable[[Scene], Renderer], scenes: list[Scene]) -> Iterable[Renderer]:
+    """A renderer per scene, in order: all at once, side by side where that pays, for a reconstructor with
+    its settings (:class:`~sparself.recon.pool.Fitter`); one after the other as they are read for any other
+    ``fit`` (a test's)."""
+    return fit.many(scenes) if isinstance(fit, Fitter) else (fit(sc) for sc in scenes)
 
 
 def with_images(scene: Scene, extra: list[Frame], images, confidence: np.ndarray | None = None) -> Scene:

@@ -28,7 +28,6 @@ with each other, so they need not be the user's final fit, only alike.
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass, replace
 from typing import Callable, Literal
 
@@ -52,7 +51,7 @@ from sparself.evaluation.weighting import (
 )
 from sparself.model.fixer import Fixer
 from sparself.recon import Renderer
-from sparself.recon.pool import FitPool
+from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
 from sparself.synthesis.synthesize import Synthesized
 
@@ -96,7 +95,7 @@ class SelfCheckConfig:
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
         None,
-        "processes the self-check's fits run in at once (auto: one per core, at most 2, for the CPU 3DGS, "
+        "processes the self-check's fits run in at once (auto: one per core, at most 4, for the CPU 3DGS, "
         "which fits on one core; 1 otherwise)",
     )
     fixer: bool = option(
@@ -149,16 +148,13 @@ def _check_settings(cfg: SelfCheckConfig) -> dict:
 def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
     """fits(scenes) -> renderers for ``cfg.recon`` with the self-check's steps and seed, run by ``pool``
     (default: one after the other in this process)."""
-    kw, pool = _check_settings(cfg), pool or FitPool(1)
-    return lambda scenes: pool.fit(cfg.recon, scenes, **kw)
+    fitter, pool = Fitter(cfg.recon, _check_settings(cfg)), pool or FitPool(1)
+    return lambda scenes: fitter.many(scenes, pool)
 
 
 def check_workers(cfg: SelfCheckConfig) -> int:
     """How many fits the self-check runs at once (``cfg.check_workers``; auto: see its help)."""
-    if cfg.check_workers is not None:
-        return cfg.check_workers
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return min(2, cores) if cfg.recon == "3dgs" and _cpu_splatting() else 1
+    return cfg.check_workers if cfg.check_workers is not None else side_by_side(cfg.recon)
 
 
 def _cpu_splatting() -> bool:

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import signal
 from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any
 
 from sparself.capture.scene import Scene
@@ -61,3 +63,36 @@ class FitPool:
             return [fit(sc, **cfg) for sc in scenes]
         futures: list[Future] = [self._pool.submit(_fit, name, sc, cfg) for sc in scenes]
         return [f.result() for f in futures]
+
+
+MAX_WORKERS = 4  # fits at once at most: the protocol's and the self-check's batches hold up to 6
+
+
+def side_by_side(name: str) -> int:
+    """How many fits of reconstructor ``name`` pay to run at once here: one per core (at most MAX_WORKERS)
+    for the CPU 3DGS, which fits on one core; 1 for the others (they use every core, or the GPU)."""
+    from sparself.recon.gsplat import available
+
+    if name not in ("3dgs", "splat") or (name == "3dgs" and available()[0]):
+        return 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(cores, MAX_WORKERS))
+
+
+@dataclass(frozen=True)
+class Fitter:
+    """A reconstructor with its settings: ``fitter(scene)`` fits one scene here; ``fitter.many(scenes)``
+    fits several, side by side where that pays (:func:`side_by_side`)."""
+
+    name: str
+    settings: dict[str, Any] = field(default_factory=dict)
+
+    def __call__(self, scene: Scene) -> Renderer:
+        return get_reconstructor(self.name)(scene, **self.settings)
+
+    def many(self, scenes: list[Scene], pool: FitPool | None = None) -> list[Renderer]:
+        """One renderer per scene, in order; run by ``pool``, else by a pool opened for these fits."""
+        if pool is not None:
+            return pool.fit(self.name, scenes, **self.settings)
+        with FitPool(min(side_by_side(self.name), len(scenes))) as own:
+            return own.fit(self.name, scenes, **self.settings)
