@@ -14,15 +14,8 @@ from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
 from sparself.capture.io.dense import SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.geometry import Pose
-from sparself.evaluation.selfcheck import (
-    SelfCheckConfig,
-    check_folds,
-    checkable,
-    informative_confidence,
-    measuring_fold,
-    view_gains,
-    weakest_plan,
-)
+from sparself.evaluation.folds import check_folds, checkable, measuring_fold, view_gains
+from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
 from sparself.synthesis.synthesize import Synthesized
 

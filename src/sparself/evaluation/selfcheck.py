@@ -4,12 +4,12 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
 * **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
   other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
   disagree most, the reconstruction is weakest, and that is where views are planned.
-* **Keep only what pays** (:func:`self_check`): in each of two folds (:func:`check_folds`) every
+* **Keep only what pays** (:func:`self_check`): in each of two folds (:func:`~sparself.evaluation.folds.check_folds`) every
   ``VALIDATION_EVERY``-th interior input is held back, the fold's views are synthesized again without those
   photos, and the reconstructor is fitted on the rest without and with them at each synthetic-frame weight.
   A view's gain is the PSNR change at its fold's held-back inputs nearest to it; views that gain are kept
   (refitted alone to confirm), and where nothing beats the fit without views, none is written. A view is
-  measured only by a fold that holds back neither of its neighbouring photos (:func:`measuring_fold`): a
+  measured only by a fold that holds back neither of its neighbouring photos (:mod:`sparself.evaluation.folds`): a
   view between the two neighbours of a held-back photo would fill a hole twice as wide as any the final
   fit, which has that photo, ever has. The second fold widens the gaps the first leaves alone, so together
   they measure every gap; a view no fold can measure is neither planned nor kept.
@@ -39,8 +39,8 @@ from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.options import check_choices, option
-from sparself.evaluation.config import VALIDATION_EVERY
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
+from sparself.evaluation.folds import check_folds, measuring_fold, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -174,43 +174,6 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     return preloaded(check_cameras(scene, cfg))
 
 
-def check_folds(n: int) -> list[list[int]]:
-    """The self-check's folds: positions among n inputs (path order) held back together. The first is
-    :func:`validation_inputs`; the second, every VALIDATION_EVERY-th interior input from the fifth, widens
-    the gaps the first leaves alone, so that between them every gap can be measured (:func:`checkable`).
-
-    >>> check_folds(25)
-    [[2, 7, 12, 17, 22], [4, 9, 14, 19]]
-    >>> check_folds(9)
-    [[2, 7], [4]]
-    """
-    first = validation_inputs(n)
-    second = [p for p in range(4, n - 1, VALIDATION_EVERY) if p not in first]
-    return [first, second] if second else [first]
-
-
-def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None) -> np.ndarray:
-    """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
-    the indices of the inputs on either side of it (``inputs`` in path order; ``held``: the held-back
-    positions, default :func:`validation_inputs`).
-
-    A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
-    hole the final fit never has, so it does not carry over (and it would blur the others' gains there)."""
-    idx = [f.index for f in inputs.frames]
-    held = validation_inputs(len(inputs)) if held is None else held
-    gaps = [sorted((idx[p - 1], idx[p + 1])) for p in held]
-    return np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
-
-
-def measuring_fold(inputs: Scene, planned: list[Frame]) -> np.ndarray:
-    """(T,) int: the :func:`check_folds` fold that measures each planned view, the first where it is
-    :func:`checkable` (-1: none)."""
-    out = np.full(len(planned), -1)
-    for k, held in enumerate(check_folds(len(inputs))):
-        out[(out < 0) & checkable(inputs, planned, held)] = k
-    return out
-
-
 def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany) -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
@@ -250,18 +213,6 @@ def informative_confidence(
     tau = cfg.agree_within
     factor = cfg.agree_weight + (1.0 - cfg.agree_weight) * np.clip((diff - tau) / tau, 0.0, 1.0)
     return (conf * factor).astype(np.float32)
-
-
-def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray, held: list[int] | None = None) -> np.ndarray:
-    """Each planned view's gain: the mean of ``gain`` (one per held-back position of ``held``, default
-    :func:`validation_inputs`) over the held-back inputs nearest to it by index (ties: all of them)."""
-    held = validation_inputs(len(inputs)) if held is None else held
-    at = np.array([inputs.frames[i].index for i in held])
-    out = []
-    for f in planned:
-        d = np.abs(at - f.index)
-        out.append(float(np.mean(gain[np.isclose(d, d.min())])))
-    return np.array(out)
 
 
 @dataclass

@@ -1,0 +1,65 @@
+"""Which held-back input photo may judge which synthesized view.
+
+The self-check holds input photos back and scores fits on them. A view between the two neighbours of a
+held-back photo fills a gap the check itself widened to twice its width: the gain measured there is a hole
+the final fit, which has that photo, never has. So the check runs in folds (:func:`check_folds`), and each
+view is judged by the first fold that holds back neither of its neighbouring photos (:func:`measuring_fold`),
+at that fold's held-back photos nearest to it (:func:`view_gains`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sparself.capture.scene import Frame, Scene
+from sparself.evaluation.config import VALIDATION_EVERY
+from sparself.evaluation.weighting import validation_inputs
+
+
+def check_folds(n: int) -> list[list[int]]:
+    """The self-check's folds: positions among n inputs (path order) held back together. The first is
+    :func:`validation_inputs`; the second, every VALIDATION_EVERY-th interior input from the fifth, widens
+    the gaps the first leaves alone, so that between them every gap can be measured (:func:`checkable`).
+
+    >>> check_folds(25)
+    [[2, 7, 12, 17, 22], [4, 9, 14, 19]]
+    >>> check_folds(9)
+    [[2, 7], [4]]
+    """
+    first = validation_inputs(n)
+    second = [p for p in range(4, n - 1, VALIDATION_EVERY) if p not in first]
+    return [first, second] if second else [first]
+
+
+def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None) -> np.ndarray:
+    """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
+    the indices of the inputs on either side of it (``inputs`` in path order; ``held``: the held-back
+    positions, default :func:`validation_inputs`).
+
+    A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
+    hole the final fit never has, so it does not carry over (and it would blur the others' gains there)."""
+    idx = [f.index for f in inputs.frames]
+    held = validation_inputs(len(inputs)) if held is None else held
+    gaps = [sorted((idx[p - 1], idx[p + 1])) for p in held]
+    return np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
+
+
+def measuring_fold(inputs: Scene, planned: list[Frame]) -> np.ndarray:
+    """(T,) int: the :func:`check_folds` fold that measures each planned view, the first where it is
+    :func:`checkable` (-1: none)."""
+    out = np.full(len(planned), -1)
+    for k, held in enumerate(check_folds(len(inputs))):
+        out[(out < 0) & checkable(inputs, planned, held)] = k
+    return out
+
+
+def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray, held: list[int] | None = None) -> np.ndarray:
+    """Each planned view's gain: the mean of ``gain`` (one per held-back position of ``held``, default
+    :func:`validation_inputs`) over the held-back inputs nearest to it by index (ties: all of them)."""
+    held = validation_inputs(len(inputs)) if held is None else held
+    at = np.array([inputs.frames[i].index for i in held])
+    out = []
+    for f in planned:
+        d = np.abs(at - f.index)
+        out.append(float(np.mean(gain[np.isclose(d, d.min())])))
+    return np.array(out)
