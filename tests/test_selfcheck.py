@@ -269,3 +269,24 @@ def test_a_bad_self_check_setting_is_one_line_before_anything_runs(tmp_path, cap
     assert cli.main(["densify", str(tmp_path / "cap"), "--out", str(tmp_path / "o"), "--check-weights", "0"]) != 0
     err = capsys.readouterr().err.strip()
     assert "check_weights" in err and "\n" not in err and not (tmp_path / "o").exists()
+
+
+def test_fits_of_photos_alone_are_made_once_per_capture_and_views_are_always_fitted():
+    from sparself.evaluation.selfcheck import remembering
+
+    scene = _line(6)
+    calls: list[int] = []
+
+    def fits(scenes):
+        calls.append(len(scenes))
+        return [object() for _ in scenes]
+
+    fits_once = remembering(fits)
+    views = scene.subset([0, 1, 2])
+    views.frames[1] = replace(views.frames[1], synthetic=True)
+    a = fits_once([scene.subset([0, 1]), scene.subset([2, 3]), views])
+    b = fits_once([scene.subset([2, 3]), views, scene.subset([0, 1])])
+    assert calls == [3, 1] and a[0] is b[2] and a[1] is b[0] and a[2] is not b[1]
+    weighted = scene.subset([0, 1])
+    weighted.frames[0] = replace(weighted.frames[0], weight=0.5)
+    assert fits_once([weighted])[0] is not a[0] and calls == [3, 1, 1]

@@ -19,8 +19,17 @@ from sparself.evaluation.fixing import fixed
 from sparself.evaluation.instruments import fit_each, renders, with_images
 from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
-from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, check_cameras, checked_views
+from sparself.evaluation.selfcheck import (
+    Checked,
+    SelfCheckConfig,
+    check_cameras,
+    check_fits,
+    check_workers,
+    checked_views,
+    remembering,
+)
 from sparself.recon import Renderer
+from sparself.recon.pool import FitPool
 from sparself.synthesis.plan import PlanConfig
 
 log = logging.getLogger(__name__)
@@ -66,7 +75,9 @@ def checked_fits(
         return
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
     sets, views = SeededSets(), SeededSets()
-    done = [checked_views(ev.inputs, ev.planned, plan, synth, cfg)[1] for synth in ev.net_synths]
+    with FitPool(check_workers(cfg)) as pool:
+        fits = remembering(check_fits(cfg, pool))  # the fits without views recur with every seed
+        done = [checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits)[1] for synth in ev.net_synths]
     kept = [k for k, c in enumerate(done) if c.frames]
     scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
     fitted = dict(zip(kept, fit_each(fit, scenes)))

@@ -4,15 +4,16 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
 * **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
   other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
   disagree most, the reconstruction is weakest, and that is where views are planned.
-* **Keep only what pays** (:func:`self_check`): in each of two folds (:func:`~sparself.evaluation.folds.check_folds`) every
-  ``VALIDATION_EVERY``-th interior input is held back, the fold's views are synthesized again without those
-  photos, and the reconstructor is fitted on the rest without and with them at each synthetic-frame weight.
-  A view's gain is the PSNR change at its fold's held-back inputs nearest to it; views that gain are kept
-  (refitted alone to confirm), and where nothing beats the fit without views, none is written. A view is
-  measured only by a fold that holds back neither of its neighbouring photos (:mod:`sparself.evaluation.folds`): a
-  view between the two neighbours of a held-back photo would fill a hole twice as wide as any the final
-  fit, which has that photo, ever has. The second fold widens the gaps the first leaves alone, so together
-  they measure every gap; a view no fold can measure is neither planned nor kept.
+* **Keep only what pays** (:func:`self_check`): in each of two folds of inputs held back together
+  (:mod:`sparself.evaluation.folds`: every ``VALIDATION_EVERY``-th interior input, from the third and from
+  the fifth), the fold's views are synthesized again without those photos, and the reconstructor is fitted
+  on the rest without and with them at each synthetic-frame weight. A view's gain is the PSNR change at its
+  fold's held-back inputs nearest to it; views that gain are kept (refitted alone to confirm), and where
+  nothing beats the fit without views, none is written. A view is measured only by a fold that holds back
+  neither of its neighbouring photos: a view between the two neighbours of a held-back photo would fill a
+  hole twice as wide as any the final fit, which has that photo, ever has. The second fold widens the gaps
+  the first leaves alone, so together they measure every gap; a view no fold can measure is neither
+  planned nor kept. Independent fits run side by side (:mod:`sparself.recon.pool`).
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
@@ -150,6 +151,30 @@ def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
     (default: one after the other in this process)."""
     fitter, pool = Fitter(cfg.recon, _check_settings(cfg)), pool or FitPool(1)
     return lambda scenes: fitter.many(scenes, pool)
+
+
+def remembering(fits: FitMany) -> FitMany:
+    """``fits`` that fits a scene of real photos only once, by its frames' names and weights (the halves, the
+    folds' bases and the reference recur with every network seed of one capture; the fits are seeded).
+    Scenes with synthesized frames are always fitted. Use one per capture and check size."""
+    memo: dict[tuple, Renderer] = {}
+
+    def key(sc: Scene) -> tuple | None:
+        return None if any(f.synthetic for f in sc.frames) else tuple((f.name, f.weight) for f in sc.frames)
+
+    def run(scenes: list[Scene]) -> list[Renderer]:
+        todo = [sc for sc in scenes if key(sc) is None or key(sc) not in memo]
+        new = iter(fits(todo))
+        out = []
+        for sc in scenes:
+            k = key(sc)
+            r = next(new) if k is None or k not in memo else memo[k]
+            if k is not None:
+                memo[k] = r
+            out.append(r)
+        return out
+
+    return run
 
 
 def check_workers(cfg: SelfCheckConfig) -> int:
@@ -437,16 +462,19 @@ def checked_views(
     synth: SynthFn,
     cfg: SelfCheckConfig,
     sources: Scene | None = None,
+    fits: FitMany | None = None,
 ) -> tuple[list[Frame], Checked, Synthesized | np.ndarray]:
     """What ``densify --recon cfg.recon`` writes: (the planned frames, the kept views, the network's answer
     for every planned frame). The poses are ``paper`` (the paper's plan) or, with ``cfg.plan_mode`` weak,
     :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
-    :func:`self_check` on ``inputs``."""
-    with FitPool(check_workers(cfg)) as pool:
-        fits = check_fits(cfg, pool)
-        targets = weakest_plan(at_check_size(inputs, cfg), plan, fits) if cfg.plan_mode == "weak" else paper
-        final = synth(inputs if sources is None else sources, targets)
-        return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits), final
+    :func:`self_check` on ``inputs``; ``fits``: how the fits run (default: :func:`check_fits` in a pool of
+    :func:`check_workers` processes)."""
+    if fits is None:
+        with FitPool(check_workers(cfg)) as pool:
+            return checked_views(inputs, paper, plan, synth, cfg, sources, check_fits(cfg, pool))
+    targets = weakest_plan(at_check_size(inputs, cfg), plan, fits) if cfg.plan_mode == "weak" else paper
+    final = synth(inputs if sources is None else sources, targets)
+    return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits), final
 
 
 def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:
