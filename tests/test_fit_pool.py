@@ -3,6 +3,8 @@ and a pool left by an exception stops its workers."""
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import numpy as np
@@ -36,13 +38,17 @@ def test_workers_fit_exactly_what_this_process_fits():
     assert len({float(r.render(scenes[0].frames[0].pose, scenes[0].cameras[1]).mean()) for r in a}) == 3
 
 
-def test_an_exception_in_the_block_stops_the_workers_at_once():
+def test_workers_ignore_stop_signals_and_an_exception_in_the_block_kills_them_at_once():
     with pytest.raises(KeyboardInterrupt):
         with FitPool(2) as pool:
             assert pool._pool is not None
             pool._pool.submit(time.sleep, 60)  # a long fit running when Ctrl-C comes
             time.sleep(0.5)
             procs = list(pool._pool._processes.values())
+            for q in procs:  # a signal to the whole process group: the workers leave it to this process
+                os.kill(q.pid, signal.SIGTERM)
+            time.sleep(0.5)
+            assert all(q.is_alive() for q in procs)
             raise KeyboardInterrupt
     deadline = time.time() + 10
     while any(p.is_alive() for p in procs) and time.time() < deadline:

@@ -19,10 +19,11 @@ log = logging.getLogger(__name__)
 
 
 def _ignore_interrupts() -> None:
-    # Ctrl-C reaches the whole process group: the parent stops the workers itself, without their tracebacks
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if hasattr(signal, "SIGHUP"):
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    # Ctrl-C, `kill -TERM -PGID` and a closed terminal reach the whole process group: the parent alone decides,
+    # stops its workers itself (SIGKILL) and reports "interrupted" without the workers' tracebacks
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 def _fit(name: str, scene: Scene, cfg: dict[str, Any]) -> Renderer:
@@ -54,7 +55,7 @@ class FitPool:
         pool.shutdown(wait=kind is None, cancel_futures=True)
         if kind is not None:
             for p in running:
-                p.terminate()
+                p.kill()
 
     def fit(self, name: str, scenes: list[Scene], **cfg) -> list[Renderer]:
         """Fit reconstructor ``name`` with keyword settings ``cfg`` on each scene; in order."""
