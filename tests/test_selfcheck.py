@@ -170,19 +170,25 @@ def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():
     np.testing.assert_allclose(view_gains(scene, frames, np.array([1.0, -3.0])), [1.0, -1.0, -3.0, -3.0])
 
 
+class _Bump:
+    """A fake fit that renders a bump centred at x = ``at`` (width ``width``) when ``on``, zeros otherwise."""
+
+    def __init__(self, on: bool, at: float, width: float):
+        self.on, self.at, self.width = on, at, width
+
+    def render(self, pose: Pose, cam):
+        v = np.exp(-(((pose.center[0] - self.at) / self.width) ** 2)) if self.on else 0.0
+        return np.full((cam.height, cam.width, 3), v, np.float32)
+
+
+def _halves_disagree_at(at: float, width: float):
+    """fits(scenes) where the half starting at the second input renders a bump, the other zeros."""
+    return lambda scenes: [_Bump(sc.frames[0].name == "src1", at, width) for sc in scenes]
+
+
 def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
     scene = _line(8)
-
-    class Flat:  # one half renders 0 everywhere, the other a bump centred at x = 0.42
-        def __init__(self, bump):
-            self.bump = bump
-
-        def render(self, pose: Pose, cam):
-            v = np.exp(-(((pose.center[0] - 0.42) / 0.05) ** 2)) if self.bump else 0.0
-            return np.full((cam.height, cam.width, 3), v, np.float32)
-
-    fits = lambda scenes: [Flat(sc.frames[0].name == "src1") for sc in scenes]  # noqa: E731
-    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), fits)
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), _halves_disagree_at(0.42, 0.05))
     assert [f.index for f in picked] == [3.75, 4.25, 7.2]  # nearest x = 0.42 in gaps 3-4 and 4-5; the end
     cands = candidate_poses(scene, PlanConfig(n_mid=2, n_extra=1))
     assert len(cands) == 7 * 3 + 2 * 2 and sum(c.beyond for c in cands) == 4
@@ -231,16 +237,7 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
 
 def test_the_weak_plan_avoids_the_gaps_the_check_widens():
     scene = _line(12)
-
-    class Bump:  # one half renders a bump at input 2 (x = 0.2), the other zeros
-        def __init__(self, on):
-            self.on = on
-
-        def render(self, pose: Pose, cam):
-            v = np.exp(-(((pose.center[0] - 0.2) / 0.15) ** 2)) if self.on else 0.0
-            return np.full((cam.height, cam.width, 3), v, np.float32)
-
-    fit = lambda scenes: [Bump(sc.frames[0].name == "src1") for sc in scenes]  # noqa: E731
+    fit = _halves_disagree_at(0.2, 0.15)  # at input 2
     picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), fit)
     assert [f.index for f in picked] == [1.75, 2.25]  # beside held-back input 2: measured by the second fold
     assert measuring_fold(scene, picked).tolist() == [1, 1]
