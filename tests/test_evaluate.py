@@ -286,3 +286,25 @@ def test_partial_results_are_handed_out_after_each_step(tmp_path):
     assert [s[1] for s in seen] == [[], [], ["nearest"], ["nearest", "nearest2"]]
     assert seen[0][0] == ["sparself"] and seen[1][0] == ["blend", "nearest", "sparself"]
     assert final.densification["nearest2"].status == "ok"
+
+
+def test_the_fixers_views_are_scored_wherever_it_was_used_even_when_no_view_was_kept(tmp_path, monkeypatch):
+    from sparself.capture.io.dense import FixerCheck
+    from sparself.evaluation import checked as checked_row
+    from sparself.evaluation import selfcheck
+    from sparself.evaluation.fixing import FixerFit
+    from sparself.evaluation.results import NETWORK_FIXED
+    from sparself.model.fixer import Fixer
+
+    used = lambda pairs, steps, seed: FixerFit(Fixer(), FixerCheck(pairs.names, 20.0, 19.0, 21.0, True))  # noqa: E731
+    monkeypatch.setattr(selfcheck, "validated_fixer", used)
+    strict = checked_row.check_config
+    monkeypatch.setattr(checked_row, "check_config", lambda ev, r: replace(strict(ev, r), min_gain=99.0))
+    hooks, _ = _hooks()
+    hooks["reconstructors"] = {"nerf": hooks["reconstructors"]["nerf"]}
+    s = ev.evaluate([_capture(tmp_path / "cap")], tmp_path / "out", _tiny_cfg(), **hooks).scenes[0]
+    rows = s.densification["nerf"].rows
+    assert all(p.decision.kept == () and p.decision.fixer.used for p in rows["sparself_checked"].per_seed)
+    fixed = rows[NETWORK_FIXED]
+    assert isinstance(fixed, SeededSets) and [p.seed for p in fixed.per_seed] == [0, 1]
+    assert all(len(p.frames) == len(rows["base"].frames) for p in fixed.per_seed)

@@ -22,6 +22,7 @@ from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.selfcheck import (
     Checked,
     SelfCheckConfig,
+    at_check_size,
     check_cameras,
     check_fits,
     check_workers,
@@ -54,13 +55,15 @@ def check_config(ev: SceneEval, rname: str) -> SelfCheckConfig | None:
     )
 
 
-def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig, label: str) -> ScoredSet | None:
+def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig, label: str, fits) -> ScoredSet | None:
     """The seed's network views at the held-out poses through the fixer, merged with the renders there of the
-    fit the written views were merged with (None: no fixer was used)."""
-    if checked.fixer is None or checked.reference is None:
+    fit on every input at the check size (the one the written views were merged with; fitted here, once per
+    capture through ``fits``, when no view was kept). None: no fixer was used."""
+    if checked.fixer is None:
         return None
+    reference = checked.reference or fits([at_check_size(ev.inputs, cfg)])[0]
     imgs, conf = ev.net_targets[k]
-    out = fixed(checked.fixer, imgs, renders(checked.reference, check_cameras(ev.full, cfg), ev.targets), conf)
+    out = fixed(checked.fixer, imgs, renders(reference, check_cameras(ev.full, cfg), ev.targets), conf)
     return ev.score(out, label, ev.scored, seed=ev.cfg.first_seed + k)
 
 
@@ -78,6 +81,8 @@ def checked_fits(
     with FitPool(check_workers(cfg)) as pool:
         fits = remembering(check_fits(cfg, pool))  # the fits without views recur with every seed
         done = [checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits)[1] for synth in ev.net_synths]
+        labels = [f"{NETWORK_FIXED} ({rname}) seed {ev.cfg.first_seed + k}" for k in range(len(done))]
+        fixed_views = [_fixed_targets(ev, k, c, cfg, label, fits) for (k, c), label in zip(enumerate(done), labels)]
     kept = [k for k, c in enumerate(done) if c.frames]
     scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
     fitted = dict(zip(kept, fit_each(fit, scenes)))
@@ -91,7 +96,7 @@ def checked_fits(
             scored = replace(base, seed=seed)
         scored.decision = checked.record
         sets.per_seed.append(scored)
-        fx = _fixed_targets(ev, k, checked, cfg, f"{NETWORK_FIXED} ({rname}) seed {seed}")
+        fx = fixed_views[k]
         if fx is not None:
             views.per_seed.append(fx)
     entry.rows[NETWORK_CHECKED] = sets
