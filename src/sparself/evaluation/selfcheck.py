@@ -59,6 +59,7 @@ from sparself.synthesis.synthesize import Synthesized
 log = logging.getLogger(__name__)
 
 FIXER_STEPS = 300  # optimisation steps of each fixer fit (a few seconds at the check size)
+PARALLEL_STEPS = 100  # self-check fits shorter than this run one after the other (a worker starts in seconds)
 BLUR = 5  # px: the view-minus-render difference is averaged over this window before it is compared
 
 
@@ -178,8 +179,12 @@ def remembering(fits: FitMany) -> FitMany:
 
 
 def check_workers(cfg: SelfCheckConfig) -> int:
-    """How many fits the self-check runs at once (``cfg.check_workers``; auto: see its help)."""
-    return cfg.check_workers if cfg.check_workers is not None else side_by_side(cfg.recon)
+    """How many fits the self-check runs at once (``cfg.check_workers``; auto: see its help, and 1 for fits
+    shorter than PARALLEL_STEPS steps, which take less time than starting a worker)."""
+    if cfg.check_workers is not None:
+        return cfg.check_workers
+    short = cfg.check_steps is not None and cfg.check_steps < PARALLEL_STEPS
+    return 1 if short else side_by_side(cfg.recon)
 
 
 def _cpu_splatting() -> bool:
