@@ -81,8 +81,10 @@ def checked_fits(
     with FitPool(check_workers(cfg)) as pool:
         fits = remembering(check_fits(cfg, pool))  # the fits without views recur with every seed
         done = [checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits)[1] for synth in ev.net_synths]
-        labels = [f"{NETWORK_FIXED} ({rname}) seed {ev.cfg.first_seed + k}" for k in range(len(done))]
-        fixed_views = [_fixed_targets(ev, k, c, cfg, label, fits) for (k, c), label in zip(enumerate(done), labels)]
+        fixed_views = [
+            _fixed_targets(ev, k, c, cfg, f"{NETWORK_FIXED} ({rname}) seed {ev.cfg.first_seed + k}", fits)
+            for k, c in enumerate(done)
+        ]
     kept = [k for k, c in enumerate(done) if c.frames]
     scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
     fitted = dict(zip(kept, fit_each(fit, scenes)))

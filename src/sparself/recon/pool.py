@@ -60,8 +60,7 @@ class FitPool:
     def fit(self, name: str, scenes: list[Scene], **cfg) -> list[Renderer]:
         """Fit reconstructor ``name`` with keyword settings ``cfg`` on each scene; in order."""
         if self._pool is None or len(scenes) < 2:
-            fit = get_reconstructor(name)
-            return [fit(sc, **cfg) for sc in scenes]
+            return [_fit(name, sc, cfg) for sc in scenes]
         futures: list[Future] = [self._pool.submit(_fit, name, sc, cfg) for sc in scenes]
         return [f.result() for f in futures]
 
