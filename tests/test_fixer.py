@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from sparself.capture.io.dense import FixerCheck, SelfCheck, ViewCheck
 from sparself.core import metrics
 from sparself.evaluation.fixing import fixed, fixer_pairs, to_tensor, validated_fixer
-from sparself.model.fixer import Fixer, blend, fix_views, train_fixer
+from sparself.model.fixer import Fixer, best_gate, blend, fix_views, train_fixer
 
 
 def _pairs(n: int = 4, h: int = 24, w: int = 32, seed: int = 0):
@@ -40,6 +40,36 @@ def test_a_trained_fixer_takes_each_pixel_from_the_image_that_is_right_there_on_
     with torch.no_grad():
         out = blend(fixer, v2, r2, c2)
     assert _psnr(out, t2) > max(_psnr(v2, t2), _psnr(r2, t2)) + 3.0
+
+
+def test_the_best_gate_is_the_least_squares_blend_weighted_by_how_far_view_and_render_differ():
+    view = torch.tensor([1.0, 1.0, 1.0, 0.5, 0.2, 0.6]).view(2, 3, 1, 1)
+    render = torch.tensor([0.0, 0.0, 0.0, 0.5, 0.2, 0.6]).view(2, 3, 1, 1)  # the second agrees with its view
+    truth = torch.tensor([0.1, 0.2, 0.45, 0.9, 0.9, 0.9]).view(2, 3, 1, 1)
+    g, w = best_gate(view, render, truth)
+    torch.testing.assert_close(g.flatten(), torch.tensor([0.25, 0.0]))  # (0.1 + 0.2 + 0.45) / 3
+    torch.testing.assert_close(w.flatten(), torch.tensor([3.0, 0.0]))
+    g, _ = best_gate(view, render, view * 2)  # past the view: the gate stops at 1
+    assert float(g[0]) == 1.0
+
+
+def test_a_gate_is_not_driven_to_the_image_that_is_right_more_often_everywhere():
+    # photos of a textured plane: the view is badly wrong on the left half (and unsure there), the render a
+    # little wrong on the right half; fitting the blend itself drove every gate to the render and left it
+    # there, saturated. The fixer must take the view on the right.
+    from planescene import plane_scene, render_plane
+
+    scene = plane_scene(xs=(0.0, 0.1, 0.2))
+    truth = to_tensor(np.stack([render_plane(f.pose, scene.cameras[f.camera_id]) for f in scene.frames]))
+    w = truth.shape[-1]
+    view, render = truth.clone(), truth.clone()
+    view[..., : w // 2], render[..., w // 2 :] = 0.2, 0.5
+    conf = torch.ones_like(truth[:, :1])
+    conf[..., : w // 2] = 0.1
+    fixer = train_fixer(view, render, conf, truth, steps=200, seed=0)
+    with torch.no_grad():
+        g = fixer(view, render, conf)
+    assert float(g[..., : w // 2].mean()) < 0.05 and float(g[..., w // 2 :].mean()) > 0.95
 
 
 def test_fixing_at_the_renders_size_is_the_blend_and_a_larger_view_is_corrected_in_its_low_frequencies():

@@ -14,7 +14,7 @@ from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
 from sparself.capture.io.dense import SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.geometry import Pose
-from sparself.evaluation.folds import check_folds, checkable, measuring_fold, view_gains
+from sparself.evaluation.folds import check_folds, checkable, measuring_fold, stand_ins, view_gains
 from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
 from sparself.synthesis.synthesize import Synthesized
@@ -78,9 +78,10 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     doc = json.loads((folder / "sparself.json").read_text())
     test = {f["source_name"] for f in doc["frames"] if f["name"] in doc["split"]["test"]}
     inputs = [f.name for f in _line().frames if f.name not in test]  # the test photos never reach the check
-    # two folds: every 5th interior input from the third, then from the fifth; each planned view is measured
-    # by the first fold that does not hold back one of its neighbouring photos
-    assert test and rec.validation == (inputs[2], inputs[7], inputs[4])
+    # three folds: every 5th interior input from the third, then from the fifth, then both ends; each planned
+    # view is measured by the first fold that does not hold back one of its neighbouring photos (views past
+    # the ends: by the ends fold)
+    assert test and rec.validation == (inputs[2], inputs[7], inputs[4], inputs[0], inputs[-1])
     checked = _line().subset([i for i, f in enumerate(_line().frames) if f.name in inputs])
     assert (measuring_fold(checked, planned) >= 0).all() and all(v.gain is not None for v in rec.views)
     # the fixer was tried on those same photos; exact views cannot be beaten, so it was not used
@@ -201,17 +202,21 @@ def test_views_between_the_neighbours_of_a_held_back_input_are_not_checkable():
     scene = _line(12)  # held back: positions 2 and 7, so the gaps 1..3 and 6..8 are twice as wide in the check
     xs = (-0.2, 0.5, 1.0, 1.5, 2.5, 3.0, 4.5, 6.5, 7.5, 8.0, 11.2)
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
-    assert checkable(scene, frames).tolist() == [True, True, True, False, False, True, True, False, False, True, True]
+    assert checkable(scene, frames).tolist() == [False, True, True, False, False, True, True, False, False, True, False]
+    assert checkable(scene, frames, [0, 11]).tolist() == [True] + [False] * 9 + [
+        True
+    ]  # the ends fold: past the ends only
 
 
 def test_two_folds_of_held_back_inputs_measure_every_gap_between_them():
-    assert check_folds(25) == [[2, 7, 12, 17, 22], [4, 9, 14, 19]] and check_folds(9) == [[2, 7], [4]]
-    assert check_folds(5) == [[2]]  # too few inputs for a second fold
-    scene = _line(12)  # folds [2, 7] and [4, 9]: widened gaps 1..3, 6..8 and 3..5, 8..10
-    xs = (0.5, 1.5, 2.5, 3.5, 4.5, 6.5, 8.5, 9.5, 10.5, 11.2)
+    assert check_folds(25) == [[2, 7, 12, 17, 22], [4, 9, 14, 19], [0, 24]]
+    assert check_folds(9) == [[2, 7], [4], [0, 8]]
+    assert check_folds(5) == [[2]]  # too few inputs for a second fold or for the ends fold
+    scene = _line(12)  # folds [2, 7] and [4, 9]: widened gaps 1..3, 6..8 and 3..5, 8..10; the ends [0, 11]
+    xs = (0.5, 1.5, 2.5, 3.5, 4.5, 6.5, 8.5, 9.5, 10.5, 11.2, -0.4)
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
-    assert measuring_fold(scene, frames).tolist() == [0, 1, 1, 0, 0, 1, 0, 0, 0, 0]
-    assert measuring_fold(_line(5), frames[:3]).tolist() == [0, -1, -1]  # one fold: 1..3 cannot be measured
+    assert measuring_fold(scene, frames).tolist() == [0, 1, 1, 0, 0, 1, 0, 0, 0, 2, 2]
+    assert measuring_fold(_line(5), frames[:3] + frames[-2:]).tolist() == [0, -1, -1, -1, -1]
 
 
 def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
@@ -224,15 +229,27 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
         calls.append(({f.name for f in sc.frames}, {t.name for t in targets}))
         return Synthesized(_exact(sc, targets), np.full((len(targets), 64, 96), 0.9, np.float32))
 
-    planned = [f for f in plan_poses(scene, PLAN) if not f.index > 11]
+    planned = plan_poses(scene, PLAN)  # four midpoints and one view past each end
     checked = selfcheck.self_check(scene, planned, synth, _exact(scene, planned), MPI, "paper")
     folds = [[scene.frames[i].name for i in held] for held in check_folds(12)]
-    assert [sources.isdisjoint(fold) and set(fold) <= targets for (sources, targets), fold in zip(calls, folds)] == [
-        True,
-        True,
-    ]
-    assert checked.record.validation == tuple(folds[0] + folds[1])
-    assert all(v.gain is not None for v in checked.record.views)  # two folds measure every gap
+    assert len(calls) == len(folds) == 3
+    assert all(sources.isdisjoint(fold) and set(fold) <= targets for (sources, targets), fold in zip(calls, folds))
+    assert checked.record.validation == tuple(sum(folds, []))
+    assert all(v.gain is not None for v in checked.record.views)  # the folds measure every gap and both ends
+    ends = {f.name for f in stand_ins(scene, [f for f in planned if not 0 <= f.index <= 11])}
+    assert calls[2][1] == ends | set(folds[2])  # the ends fold fits the stand-ins, not the views past the ends
+
+
+def test_a_view_past_an_end_is_stood_in_for_by_the_same_extrapolation_one_input_further_in():
+    scene = _line(12)  # input i at x = 0.1 i
+    planned = plan_poses(scene, PLAN)
+    past = [f for f in planned if not 0 <= f.index <= 11]
+    assert [f.index for f in past] == [-0.2, 11.2]
+    subs = stand_ins(scene, past)
+    assert [f.index for f in subs] == pytest.approx([0.8, 10.2])
+    np.testing.assert_allclose([f.pose.center[0] for f in subs], [0.08, 1.02], atol=1e-9)
+    inside = [f for f in planned if 0 <= f.index <= 11]
+    assert stand_ins(scene, inside) == inside
 
 
 def test_the_weak_plan_avoids_the_gaps_the_check_widens():

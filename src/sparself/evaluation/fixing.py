@@ -24,6 +24,7 @@ from sparself.model.fixer import Fixer, blend, fix_views, train_fixer
 from sparself.recon import Renderer
 
 log = logging.getLogger(__name__)
+MIN_GAIN = 0.05  # dB the merges must beat both the views and the renders by (a merge that copies the render ties it)
 
 
 @dataclass
@@ -97,7 +98,7 @@ def _mean_psnr(pred: torch.Tensor, truth: torch.Tensor) -> float:
 
 def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
     """Score each pair's photo with a fixer trained on the other pairs (leave-one-out); when those merges
-    beat both the views and the renders (mean PSNR), the fixer trained on every pair. Needs two pairs."""
+    beat both the views and the renders by MIN_GAIN (mean PSNR), the fixer trained on every pair. Needs two pairs."""
     v, r, c, t = pairs.view, pairs.render, pairs.confidence, pairs.truth
     if len(pairs) < 2:
         return FixerFit(None, FixerCheck(pairs.names, _mean_psnr(v, t), _mean_psnr(r, t), float("nan"), False))
@@ -107,7 +108,7 @@ def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
         with torch.no_grad():
             loo.append(blend(fx, v[j : j + 1], r[j : j + 1], c[j : j + 1]))
     p_view, p_render, p_fixed = _mean_psnr(v, t), _mean_psnr(r, t), _mean_psnr(torch.cat(loo), t)
-    used = p_fixed > max(p_view, p_render)
+    used = p_fixed > max(p_view, p_render) + MIN_GAIN
     log.info(
         "fixer on %d held-back inputs: views %.2f dB, render %.2f dB, fixed %.2f dB (%s)",
         len(pairs),

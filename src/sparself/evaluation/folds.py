@@ -5,6 +5,11 @@ held-back photo fills a gap the check itself widened to twice its width: the gai
 the final fit, which has that photo, never has. So the check runs in folds (:func:`check_folds`), and each
 view is judged by the first fold that holds back neither of its neighbouring photos (:func:`measuring_fold`),
 at that fold's held-back photos nearest to it (:func:`view_gains`).
+
+A view past an end input is judged by a fold of its own that holds both end photos back: no interior
+photo is beyond it, so no interior fold can measure it. That fold fits and scores a *stand-in* for it
+(:func:`stand_ins`): the same extrapolation made one input further in, which lands between the new end and
+the held-back one.
 """
 
 from __future__ import annotations
@@ -14,21 +19,47 @@ import numpy as np
 from sparself.capture.scene import Frame, Scene
 from sparself.evaluation.config import VALIDATION_EVERY
 from sparself.evaluation.weighting import validation_inputs
+from sparself.synthesis.plan import planned_frame
+
+ENDS_MIN = 6  # inputs a capture needs for the ends fold: two extrapolate each stand-in after both ends go
 
 
 def check_folds(n: int) -> list[list[int]]:
     """The self-check's folds: positions among n inputs (path order) held back together. The first is
     :func:`validation_inputs`; the second, every VALIDATION_EVERY-th interior input from the fifth, widens
-    the gaps the first leaves alone, so that between them every gap can be measured (:func:`checkable`).
+    the gaps the first leaves alone, so that between them every gap can be measured (:func:`checkable`);
+    the last (from ENDS_MIN inputs) holds back both ends, for the views past them.
 
     >>> check_folds(25)
-    [[2, 7, 12, 17, 22], [4, 9, 14, 19]]
+    [[2, 7, 12, 17, 22], [4, 9, 14, 19], [0, 24]]
     >>> check_folds(9)
-    [[2, 7], [4]]
+    [[2, 7], [4], [0, 8]]
     """
     first = validation_inputs(n)
     second = [p for p in range(4, n - 1, VALIDATION_EVERY) if p not in first]
-    return [first, second] if second else [first]
+    return [first] + [second] * bool(second) + [[0, n - 1]] * (n >= ENDS_MIN)
+
+
+def beyond(inputs: Scene, frames: list[Frame]) -> np.ndarray:
+    """(T,) bool: the frames past the first or the last input (``inputs`` in path order)."""
+    lo, hi = inputs.frames[0].index, inputs.frames[-1].index
+    return np.array([not min(lo, hi) <= f.index <= max(lo, hi) for f in frames], bool)
+
+
+def stand_ins(inputs: Scene, frames: list[Frame]) -> list[Frame]:
+    """``frames`` with each one past an end input replaced by the same extrapolation (the same t) from the
+    two inputs next to that end, so that it lies between them and the end input, where a fold holding the
+    end back can score it; the others unchanged."""
+    idx, n = [f.index for f in inputs.frames], len(inputs)
+    out = []
+    for f, past in zip(frames, beyond(inputs, frames)):
+        if not past:
+            out.append(f)
+            continue
+        a, b, end = (n - 3, n - 2, n - 1) if abs(f.index - idx[-1]) < abs(f.index - idx[0]) else (2, 1, 0)
+        t = (f.index - idx[b]) / (idx[end] - idx[b])
+        out.append(planned_frame(inputs, a, b, idx[a], idx[b], t))
+    return out
 
 
 def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None) -> np.ndarray:
@@ -37,11 +68,15 @@ def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None
     positions, default :func:`validation_inputs`).
 
     A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
-    hole the final fit never has, so it does not carry over (and it would blur the others' gains there)."""
+    hole the final fit never has, so it does not carry over (and it would blur the others' gains there).
+    Views past the ends are checkable only by a fold holding an end back, and only they are."""
     idx = [f.index for f in inputs.frames]
     held = validation_inputs(len(inputs)) if held is None else held
+    past = beyond(inputs, planned)
+    if {0, len(idx) - 1} & set(held):
+        return past
     gaps = [sorted((idx[p - 1], idx[p + 1])) for p in held]
-    return np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
+    return ~past & np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
 
 
 def measuring_fold(inputs: Scene, planned: list[Frame]) -> np.ndarray:

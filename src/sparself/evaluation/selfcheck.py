@@ -12,8 +12,10 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
   nothing beats the fit without views, none is written. A view is measured only by a fold that holds back
   neither of its neighbouring photos: a view between the two neighbours of a held-back photo would fill a
   hole twice as wide as any the final fit, which has that photo, ever has. The second fold widens the gaps
-  the first leaves alone, so together they measure every gap; a view no fold can measure is neither
-  planned nor kept. Independent fits run side by side (:mod:`sparself.recon.pool`).
+  the first leaves alone, so together they measure every gap. Views past the end inputs are judged by a
+  third fold that holds both ends back, through stand-ins: the same extrapolations made one input further
+  in. A view no fold can measure is neither planned nor kept. Independent fits run side by side
+  (:mod:`sparself.recon.pool`).
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
@@ -41,7 +43,7 @@ from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.options import check_choices, option
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
-from sparself.evaluation.folds import check_folds, measuring_fold, view_gains
+from sparself.evaluation.folds import check_folds, measuring_fold, stand_ins, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -248,12 +250,14 @@ def informative_confidence(
 @dataclass
 class _Fold:
     """One fold of the self-check: its held-back positions, the fit without them, the planned views it
-    measures (positions into the plan), those views synthesized without the held-back photos (at the check
-    size) with the renders of ``base`` there, and the fixer's pairs at the held-back photos."""
+    measures (positions into the plan) and the frames it fits for them (:func:`stand_ins`), those
+    synthesized without the held-back photos (at the check size) with the renders of ``base`` there, and
+    the fixer's pairs at the held-back photos."""
 
     held: list[int]
     base: Renderer
     views: list[int]
+    frames: list[Frame]
     synthesized: ValidationViews
     reference: np.ndarray  # (V, h, w, 3)
     pairs: FixerPairs
@@ -263,7 +267,7 @@ def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], vi
     """The fold with ``base`` (the fit without ``held``): its views and its held-back photos synthesized from
     the other inputs in one call (the photos become the fixer's pairs)."""
     _, train = validation_split(inputs, held)
-    frames = [planned[i] for i in views]
+    frames = stand_ins(small, [planned[i] for i in views])
     images, conf = images_and_confidence(synth(train, frames + [inputs.frames[i] for i in held]))
     cam = small.cameras[frames[0].camera_id]
     size, v = (cam.width, cam.height), len(frames)
@@ -273,7 +277,7 @@ def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], vi
         [f.name for f in train.frames],
     )
     pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:])
-    return _Fold(held, base, views, made, renders(base, small, frames), pairs)
+    return _Fold(held, base, views, frames, made, renders(base, small, frames), pairs)
 
 
 def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
@@ -302,7 +306,7 @@ class _Scores:
     by_weight: dict[float, np.ndarray]
 
 
-def _scores(small: Scene, planned: list[Frame], folds: list[_Fold], fits: FitMany, cfg):
+def _scores(small: Scene, folds: list[_Fold], fits: FitMany, cfg):
     """Each fold's views with their confidence lowered where they agree with its render, and every fold's fits
     with its views at each weight, all fitted at once: [(scores, lowered views)] per fold."""
     lowered = [
@@ -312,11 +316,7 @@ def _scores(small: Scene, planned: list[Frame], folds: list[_Fold], fits: FitMan
         )
         for f in folds
     ]
-    scenes = [
-        sc
-        for f, v in zip(folds, lowered)
-        for sc in weight_scenes(small, [planned[i] for i in f.views], v, cfg.check_weights, f.held)
-    ]
+    scenes = [sc for f, v in zip(folds, lowered) for sc in weight_scenes(small, f.frames, v, cfg.check_weights, f.held)]
     fitted = iter(fits(scenes))
     out = []
     for f, v in zip(folds, lowered):
@@ -341,15 +341,15 @@ def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: f
     ]
     keeps = [g > cfg.min_gain for g in gains]
     partial = [k for k, keep in enumerate(keeps) if 0 < keep.sum() < len(keep)]
-    scenes = [_kept_scene(small, planned, folds[k], scored[k][1], keeps[k], w) for k in partial]
+    scenes = [_kept_scene(small, folds[k], scored[k][1], keeps[k], w) for k in partial]
     alone = {k: held_back_psnr(small, r, folds[k].held) for k, r in zip(partial, fits(scenes))}
     return [_settle(keeps[k], gains[k], scored[k][0], w, alone.get(k), cfg) for k in range(len(folds))]
 
 
-def _kept_scene(small: Scene, planned: list[Frame], fold: _Fold, views: ValidationViews, keep, w: float) -> Scene:
+def _kept_scene(small: Scene, fold: _Fold, views: ValidationViews, keep, w: float) -> Scene:
     idx = np.flatnonzero(keep)
     sub = ValidationViews(views.images[idx], None if views.confidence is None else views.confidence[idx], views.sources)
-    return weight_scenes(small, [planned[fold.views[i]] for i in idx], sub, [w], fold.held)[0]
+    return weight_scenes(small, [fold.frames[i] for i in idx], sub, [w], fold.held)[0]
 
 
 def _settle(keep: np.ndarray, gains: np.ndarray, sc: _Scores, w: float, alone: np.ndarray | None, cfg) -> _Decision:
@@ -392,7 +392,7 @@ def self_check(
     bases = fits([validation_split(small, h)[1] for h in held])
     made = [_fold(inputs, small, planned, h, v, synth, b) for h, v, b in zip(held, views, bases)]
     folds, fix = _fixed_folds(made, cfg)
-    scored = _scores(small, planned, folds, fits, cfg)
+    scored = _scores(small, folds, fits, cfg)
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
     decided = _decide(small, planned, folds, scored, w, fits, cfg)

@@ -34,9 +34,22 @@ class Fixer(nn.Module):
             nn.Conv2d(hidden, 1, 1),
         )
 
-    def forward(self, view: torch.Tensor, render: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:
+    def logits(self, view: torch.Tensor, render: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:
+        """The gate before its sigmoid: (B, 1, h, w)."""
         diff = (view - render).abs().mean(1, keepdim=True)
-        return torch.sigmoid(self.net(torch.cat([view, render, diff, confidence], 1)))
+        return self.net(torch.cat([view, render, diff, confidence], 1))
+
+    def forward(self, view: torch.Tensor, render: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.logits(view, render, confidence))
+
+
+def best_gate(view: torch.Tensor, render: torch.Tensor, truth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The per-pixel gate g* in [0, 1] whose blend is nearest ``truth`` (least squares over the colour
+    channels) and the weight of that pixel, ``|view - render|^2`` (a pixel where the two agree does not care
+    about its gate). All (B, 3, h, w) -> two (B, 1, h, w)."""
+    d, e = view - render, truth - render
+    dd = (d * d).sum(1, keepdim=True)
+    return ((d * e).sum(1, keepdim=True) / dd.clamp_min(1e-8)).clamp(0.0, 1.0), dd
 
 
 def blend(fixer: Fixer, view: torch.Tensor, render: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:
@@ -71,19 +84,26 @@ def train_fixer(
     lr: float = 1e-2,
     seed: int = 0,
 ) -> Fixer:
-    """A fixer fitted so that :func:`blend` matches ``truth`` (L1), all (B, C, h, w) at one size.
+    """A fixer fitted so that :func:`blend` matches ``truth``, all (B, C, h, w) at one size.
 
-    The gate starts at 1/2 (the plain average); with a handful of training photos the network is kept small
-    (about 1,300 weights) so that it learns where to trust each image, not the photos themselves."""
+    The squared error of a blend is ``|view - render|^2 (g - g*)^2`` plus a constant (:func:`best_gate`), so
+    the gate is fitted to g* by cross-entropy on its logits with that weight: the same optimum, but the
+    gradient does not vanish when the sigmoid saturates (a loss on the blend itself drives every gate to the
+    image that is right more often and stays there). The gate starts at 1/2 (the plain average); with a
+    handful of training photos the network is kept small (about 1,300 weights) so that it learns where to
+    trust each image, not the photos themselves."""
     gen = torch.Generator().manual_seed(seed)
     fixer = Fixer()
     with torch.no_grad():
         for p in fixer.parameters():
             p.copy_(torch.randn(p.shape, generator=gen) * (0.1 if p.dim() > 1 else 0.0))
     opt = torch.optim.Adam(fixer.parameters(), lr=lr)
+    target, weight = best_gate(view, render, truth)
+    total = weight.sum().clamp_min(1e-8)
     for _ in range(steps):
         opt.zero_grad()
-        loss = (blend(fixer, view, render, confidence) - truth).abs().mean()
+        each = F.binary_cross_entropy_with_logits(fixer.logits(view, render, confidence), target, reduction="none")
+        loss = (each * weight).sum() / total
         loss.backward()
         opt.step()
     return fixer.eval()

@@ -107,7 +107,9 @@ def _choose_gaps(scene: Scene, seq: np.ndarray, n_mid: int, how: str) -> np.ndar
     return np.floor((np.arange(n_mid) + 0.5) * n_gaps / n_mid).astype(np.int64)
 
 
-def _planned(scene: Scene, ia: int, ib: int, index_a: float, index_b: float, t: float) -> Frame:
+def planned_frame(scene: Scene, ia: int, ib: int, index_a: float, index_b: float, t: float) -> Frame:
+    """The novel frame at ``t`` along the pose path from frame ``ia`` (index ``index_a``) to ``ib`` (t > 1:
+    past ``ib``)."""
     fa, fb = scene.frames[ia], scene.frames[ib]
     pose = interpolate_pose(fa.pose, fb.pose, t)
     index = round(float(index_a + t * (index_b - index_a)), 9)  # -0.2, not -0.19999999999999996
@@ -132,7 +134,7 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     idx = indices_along(scene, seq)
     out: list[Frame] = []
     for g in _choose_gaps(scene, seq, int(cfg.n_mid), cfg.gaps):
-        out.append(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], cfg.t_mid))
+        out.append(planned_frame(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], cfg.t_mid))
         a, b = scene.frames[seq[g]], scene.frames[seq[g + 1]]
         if np.allclose(a.pose.w2c(), b.pose.w2c(), atol=1e-9):
             log.warning(
@@ -143,9 +145,9 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     for k in range(int(cfg.n_extra)):
         t = 1.0 + (k // 2 + 1) * (cfg.t_extra - 1.0)
         if k % 2 == 0:  # past the end: pair (N-2, N-1)
-            out.append(_planned(scene, seq[-2], seq[-1], idx[-2], idx[-1], t))
+            out.append(planned_frame(scene, seq[-2], seq[-1], idx[-2], idx[-1], t))
         else:  # before the start: pair (1, 0)
-            out.append(_planned(scene, seq[1], seq[0], idx[1], idx[0], t))
+            out.append(planned_frame(scene, seq[1], seq[0], idx[1], idx[0], t))
     out.sort(key=lambda f: f.index)
     return out
 
@@ -179,14 +181,14 @@ def candidate_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Candida
     seq = plan_order(scene, cfg.order)
     idx = indices_along(scene, seq)
     out = [
-        Candidate(_planned(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], t), int(g))
+        Candidate(planned_frame(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], t), int(g))
         for g in range(len(seq) - 1)
         for t in sorted({*CANDIDATE_T_MID, cfg.t_mid})
     ]
     if cfg.n_extra:
         for t in sorted({*CANDIDATE_T_EXTRA, cfg.t_extra}):
-            out.append(Candidate(_planned(scene, seq[-2], seq[-1], idx[-2], idx[-1], t), len(seq) - 1, True))
-            out.append(Candidate(_planned(scene, seq[1], seq[0], idx[1], idx[0], t), -1, True))
+            out.append(Candidate(planned_frame(scene, seq[-2], seq[-1], idx[-2], idx[-1], t), len(seq) - 1, True))
+            out.append(Candidate(planned_frame(scene, seq[1], seq[0], idx[1], idx[0], t), -1, True))
     return out
 
 
