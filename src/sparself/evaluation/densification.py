@@ -116,10 +116,11 @@ def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], e
     choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
     choice.chosen_on_seed = ev.cfg.first_seed
     sets = SeededSets()
-    for k, seed in enumerate(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))):
-        sc = weighted_scene(ev.inputs, ev.planned, ev.net_planned[k], ev.net_conf[k], choice.weight)
+    seeds = range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))
+    scenes = [weighted_scene(ev.inputs, ev.planned, v, c, choice.weight) for v, c in zip(ev.net_planned, ev.net_conf)]
+    for seed, sc, r in zip(seeds, scenes, fit_each(fit, scenes)):
         label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
-        scored = ev.score(render_targets(ev, fit(sc)), label, ev.scored, seed=seed, views=len(sc))
+        scored = ev.score(render_targets(ev, r), label, ev.scored, seed=seed, views=len(sc))
         scored.decision = choice
         sets.per_seed.append(scored)
     entry.rows[NETWORK_WEIGHTED] = sets

@@ -24,7 +24,7 @@ from sparself.model.fixer import Fixer, blend, fix_views, train_fixer
 from sparself.recon import Renderer
 
 log = logging.getLogger(__name__)
-MIN_GAIN = 0.05  # dB the merges must beat both the views and the renders by (a merge that copies the render ties it)
+MIN_GAIN = 0.05  # dB the merges must beat both the views and the renders by at least (a copy of the render ties)
 
 
 @dataclass
@@ -90,15 +90,32 @@ def fixer_pairs(
     return FixerPairs(tuple(small.frames[i].name for i in held), *(to_tensor(a) for a in (v, rend, c, truth)))
 
 
+def _psnrs(pred: torch.Tensor, truth: torch.Tensor) -> np.ndarray:
+    return np.array([metrics.psnr(p.permute(1, 2, 0).numpy(), t.permute(1, 2, 0).numpy()) for p, t in zip(pred, truth)])
+
+
 def _mean_psnr(pred: torch.Tensor, truth: torch.Tensor) -> float:
-    return float(
-        np.mean([metrics.psnr(p.permute(1, 2, 0).numpy(), t.permute(1, 2, 0).numpy()) for p, t in zip(pred, truth)])
-    )
+    return float(np.mean(_psnrs(pred, truth)))
+
+
+def beats(fixed: np.ndarray, view: np.ndarray, render: np.ndarray) -> bool:
+    """Whether the merges beat both the views and the renders (PSNR per photo, each (P,)): their mean gain
+    over the better of the two (by mean) exceeds MIN_GAIN and the standard error of that gain over the
+    photos, so that a few photos that happen to favour the merge do not decide.
+
+    >>> beats(np.array([21.0, 22.0]), np.array([20.0, 21.0]), np.array([19.0, 19.0]))
+    True
+    >>> beats(np.array([22.0, 20.2]), np.array([20.0, 21.0]), np.array([19.0, 19.0]))  # +0.6 +- 1.4
+    False
+    """
+    gain = fixed - (view if view.mean() >= render.mean() else render)
+    se = gain.std(ddof=1) / np.sqrt(len(gain)) if len(gain) > 1 else np.inf
+    return bool(gain.mean() > max(MIN_GAIN, se))
 
 
 def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
     """Score each pair's photo with a fixer trained on the other pairs (leave-one-out); when those merges
-    beat both the views and the renders by MIN_GAIN (mean PSNR), the fixer trained on every pair. Needs two pairs."""
+    beat both the views and the renders (:func:`beats`), the fixer trained on every pair. Needs two pairs."""
     v, r, c, t = pairs.view, pairs.render, pairs.confidence, pairs.truth
     if len(pairs) < 2:
         return FixerFit(None, FixerCheck(pairs.names, _mean_psnr(v, t), _mean_psnr(r, t), float("nan"), False))
@@ -107,15 +124,16 @@ def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
         fx = pairs.subset([k for k in range(len(pairs)) if k != j]).train(steps, seed)
         with torch.no_grad():
             loo.append(blend(fx, v[j : j + 1], r[j : j + 1], c[j : j + 1]))
-    p_view, p_render, p_fixed = _mean_psnr(v, t), _mean_psnr(r, t), _mean_psnr(torch.cat(loo), t)
-    used = p_fixed > max(p_view, p_render) + MIN_GAIN
+    each = _psnrs(v, t), _psnrs(r, t), _psnrs(torch.cat(loo), t)
+    p_view, p_render, p_fixed = (float(e.mean()) for e in each)
+    used = beats(each[2], each[0], each[1])
     log.info(
         "fixer on %d held-back inputs: views %.2f dB, render %.2f dB, fixed %.2f dB (%s)",
         len(pairs),
         p_view,
         p_render,
         p_fixed,
-        "used" if used else "not used: it does not beat both",
+        "used" if used else "not used: it does not beat both by more than its spread over the photos",
     )
     fixer = pairs.train(steps, seed) if used else None
     return FixerFit(fixer, FixerCheck(pairs.names, p_view, p_render, p_fixed, used))

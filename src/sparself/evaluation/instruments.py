@@ -18,7 +18,7 @@ from sparself.core import metrics
 from sparself.core.errors import ConfigError, InputError
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
-from sparself.recon import Renderer, get_reconstructor
+from sparself.recon import Renderer, backend, get_reconstructor
 from sparself.recon.pool import Fitter
 from sparself.synthesis.baselines import BASELINES
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
@@ -106,8 +106,6 @@ def baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
 def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
     the evaluation's settings applied; ``.many(scenes)`` fits several side by side where that pays."""
-    from sparself.recon.gsplat import available
-
     get_reconstructor(name)  # an unknown name fails here, before any fit
     base = dict(seed=cfg.recon_seed, progress=cfg.progress)
     splat = dict(base)
@@ -116,7 +114,7 @@ def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     kw = {
         "nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
         "gsplat": base,
-        "3dgs": base if available()[0] else splat,  # the CPU path's setting: gsplat keeps its recipe
+        "3dgs": splat if backend("3dgs") == "splat" else base,  # the CPU path's setting: gsplat keeps its recipe
         "splat": splat,
     }.get(name, {})
     return Fitter(name, kw)

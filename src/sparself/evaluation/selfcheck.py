@@ -53,7 +53,7 @@ from sparself.evaluation.weighting import (
     weight_scenes,
 )
 from sparself.model.fixer import Fixer
-from sparself.recon import Renderer
+from sparself.recon import Renderer, backend
 from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
 from sparself.synthesis.synthesize import Synthesized
@@ -144,7 +144,7 @@ def _check_settings(cfg: SelfCheckConfig) -> dict:
     kw: dict = {} if cfg.recon == "mpi" else {"seed": cfg.check_seed, "progress": False}
     if cfg.check_steps is not None and cfg.recon != "mpi":
         kw["steps"] = cfg.check_steps
-        if cfg.recon == "3dgs" and _cpu_splatting():
+        if backend(cfg.recon) == "splat":
             kw["min_steps_per_view"] = 0  # the CPU path raises steps to 60 per view otherwise
     return kw
 
@@ -187,12 +187,6 @@ def check_workers(cfg: SelfCheckConfig) -> int:
         return cfg.check_workers
     short = cfg.check_steps is not None and cfg.check_steps < PARALLEL_STEPS
     return 1 if short else side_by_side(cfg.recon)
-
-
-def _cpu_splatting() -> bool:
-    from sparself.recon.gsplat import available
-
-    return not available()[0]
 
 
 def check_cameras(scene: Scene, cfg: SelfCheckConfig) -> Scene:

@@ -12,7 +12,7 @@ from sparself.capture.scene import Frame, Scene
 from sparself.core import metrics
 from sparself.core.errors import ConfigError
 from sparself.evaluation.config import VALIDATION_EVERY
-from sparself.evaluation.instruments import SynthFn, images_and_confidence, with_images
+from sparself.evaluation.instruments import SynthFn, fit_each, images_and_confidence, with_images
 from sparself.evaluation.results import WeightChoice
 from sparself.recon import Renderer
 
@@ -101,10 +101,11 @@ def weight_scores(
     held: Sequence[int] | None = None,
 ) -> dict[float, np.ndarray]:
     """For each synthetic-frame weight of ``grid``: the :func:`held_back_psnr` of a fit on
-    :func:`weight_scenes`' scene. Reads the inputs' pixels only, never a held-out photo."""
+    :func:`weight_scenes`' scene (all fitted at once, :func:`fit_each`). Reads the inputs' pixels only, never a
+    held-out photo."""
     val, _ = validation_split(inputs, held)
     scenes = weight_scenes(inputs, planned, views, grid, val)
-    return {float(w): held_back_psnr(inputs, fit(sc), val) for w, sc in zip(grid, scenes)}
+    return {float(w): held_back_psnr(inputs, r, val) for w, r in zip(grid, fit_each(fit, scenes))}
 
 
 def choose_weight(

@@ -39,12 +39,19 @@ def _lazy(module: str, attr: str = "fit") -> Callable[..., Renderer]:
     return fit
 
 
-def fit_3dgs(scene: Scene, **cfg) -> Renderer:
-    """3D Gaussian splatting: gsplat on CUDA when it can run here, else the plain-torch CPU path
-    (``recon.splat``). The renderer's ``backend`` says which ran."""
+def backend(name: str) -> str:
+    """The reconstructor that fits for ``name`` here: "3dgs" is gsplat on CUDA when it can run, else the
+    plain-torch CPU path ("splat"); every other name is itself."""
+    if name != "3dgs":
+        return name
     from sparself.recon.gsplat import available
 
-    return _lazy("gsplat" if available()[0] else "splat")(scene, **cfg)
+    return "gsplat" if available()[0] else "splat"
+
+
+def fit_3dgs(scene: Scene, **cfg) -> Renderer:
+    """3D Gaussian splatting on :func:`backend`'s choice. The renderer's ``backend`` says which ran."""
+    return _lazy(backend("3dgs"))(scene, **cfg)
 
 
 RECONSTRUCTORS: dict[str, Callable[..., Renderer]] = {

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sparself.capture.scene import Scene
-from sparself.recon import Renderer, get_reconstructor
+from sparself.recon import Renderer, backend, get_reconstructor
 
 log = logging.getLogger(__name__)
 
@@ -71,9 +71,7 @@ MAX_WORKERS = 4  # fits at once at most: the protocol's and the self-check's bat
 def side_by_side(name: str) -> int:
     """How many fits of reconstructor ``name`` pay to run at once here: one per core (at most MAX_WORKERS)
     for the CPU 3DGS, which fits on one core; 1 for the others (they use every core, or the GPU)."""
-    from sparself.recon.gsplat import available
-
-    if name not in ("3dgs", "splat") or (name == "3dgs" and available()[0]):
+    if backend(name) != "splat":
         return 1
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     return max(1, min(cores, MAX_WORKERS))
