@@ -11,7 +11,7 @@ import torch.nn.functional as F
 
 from sparself.capture.io.dense import FixerCheck, SelfCheck, ViewCheck
 from sparself.core import metrics
-from sparself.evaluation.fixing import fixed, fixer_pairs, to_tensor, validated_fixer
+from sparself.evaluation.fixing import beats, fixed, fixer_pairs, to_tensor, validated_fixer
 from sparself.model.fixer import Fixer, best_gate, blend, fix_views, train_fixer
 
 
@@ -70,6 +70,16 @@ def test_a_gate_is_not_driven_to_the_image_that_is_right_more_often_everywhere()
     with torch.no_grad():
         g = fixer(view, render, conf)
     assert float(g[..., : w // 2].mean()) < 0.05 and float(g[..., w // 2 :].mean()) > 0.95
+
+
+def test_the_merge_must_beat_both_by_more_than_chance_over_the_photos():
+    view, render = np.array([20.0, 21.0, 22.0]), np.array([19.0, 19.0, 19.0])
+    assert beats(view + 1.0, view, render)  # +1 dB on every photo
+    assert not beats(view + 0.01, view, render)  # under the 0.05 dB floor
+    # +0.6 dB on average, but from one photo: the standard error (1.0 dB) is larger than the gain
+    assert not beats(view + np.array([2.6, -0.6, -0.2]), view, render)
+    assert beats(render + 0.5, render - 1.0, render)  # the render is the better of the two: gains count over it
+    assert not beats(view[:1] + 5.0, view[:1], render[:1])  # one photo cannot show a spread
 
 
 def test_fixing_at_the_renders_size_is_the_blend_and_a_larger_view_is_corrected_in_its_low_frequencies():
