@@ -73,6 +73,19 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float = 1.0) -> float:
     return float(m.mean())
 
 
+def clear_gain(gain, floor: float = 0.0) -> bool:
+    """Whether paired gains (one per photo, any shape) show a gain: their mean exceeds both ``floor`` and
+    their standard error. One photo shows none (no spread to compare with).
+
+    >>> clear_gain([1.0, 1.2, 0.8]), clear_gain([2.6, -0.6, -0.2]), clear_gain([5.0])
+    (True, False, False)
+    """
+    g = np.asarray(gain, np.float64).ravel()
+    if g.size < 2:
+        return False
+    return bool(g.mean() > max(floor, g.std(ddof=1) / np.sqrt(g.size)))
+
+
 def summarize(values) -> dict:
     """Mean, population std, min, max and count of finite values (``inf`` PSNRs are counted in n_inf).
 

@@ -108,9 +108,7 @@ def beats(fixed: np.ndarray, view: np.ndarray, render: np.ndarray) -> bool:
     >>> beats(np.array([22.0, 20.2]), np.array([20.0, 21.0]), np.array([19.0, 19.0]))  # +0.6 +- 1.4
     False
     """
-    gain = fixed - (view if view.mean() >= render.mean() else render)
-    se = gain.std(ddof=1) / np.sqrt(len(gain)) if len(gain) > 1 else np.inf
-    return bool(gain.mean() > max(MIN_GAIN, se))
+    return metrics.clear_gain(fixed - (view if view.mean() >= render.mean() else render), MIN_GAIN)
 
 
 def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:

@@ -41,6 +41,7 @@ from sparself.capture.images import resize_images
 from sparself.capture.io.dense import SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
+from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
 from sparself.evaluation.folds import check_folds, measuring_fold, stand_ins, view_gains
@@ -89,7 +90,9 @@ class SelfCheckConfig:
     check_weights: tuple[float, ...] = option(
         (0.5, 1.0), "synthetic-frame loss weights tried (one fit each on the inputs minus the held-back ones)"
     )
-    min_gain: float = option(0.0, "dB a view must add at its held-back inputs to be kept")
+    min_gain: float = option(
+        0.0, "dB a view must add at its held-back inputs to be kept (and the kept views together: more than its spread)"
+    )
     agree_within: float = option(
         0.03,
         "mean absolute difference (0..1) within which a synthesized pixel agrees with the render of the fit "
@@ -389,13 +392,26 @@ def self_check(
     scored = _scores(small, folds, fits, cfg)
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
-    decided = _decide(small, planned, folds, scored, w, fits, cfg)
+    decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), [s for s, _ in scored], cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
     record = _record(small, planned, folds, [s for s, _ in scored], decided, weights, w, keep, gains, fix, cfg, plan)
+    if unclear:
+        record = replace(record, reason=record.reason.replace(" improves ", " clearly improves ", 1))
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
     return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
+
+
+def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[list[_Decision], bool]:
+    """The folds' decisions, or none kept anywhere (and True) when the kept views' gains at the held-back
+    photos of the folds that keep any are not a clear gain (:func:`~sparself.core.metrics.clear_gain`):
+    a gain within its own spread over the photos is not evidence that the views help."""
+    kept = [(d, s) for d, s in zip(decided, scores) if d.keep.any()]
+    if not kept or clear_gain(np.concatenate([d.chosen - s.without for d, s in kept]), cfg.min_gain):
+        return decided, False
+    log.info("self-check: the kept views' gain at the held-back photos is within its spread there: keeping none")
+    return [_Decision(np.zeros(len(d.keep), bool), d.gains, s.without) for d, s in zip(decided, scores)], True
 
 
 def _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str) -> SelfCheck:
