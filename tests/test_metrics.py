@@ -109,3 +109,12 @@ def test_summarize():
     assert s["mean"] == 2.0 and s["min"] == 1.0 and s["max"] == 3.0 and s["n"] == 3 and s["n_inf"] == 1
     assert s["std"] == pytest.approx(math.sqrt(2 / 3))
     assert math.isnan(summarize([])["mean"])
+
+
+def test_a_clear_gain_exceeds_both_its_floor_and_its_standard_error():
+    assert metrics.clear_gain([1.0, 1.2, 0.8])  # mean 1.0, standard error 0.115
+    assert not metrics.clear_gain([1.0, 1.2, 0.8], floor=1.0)
+    # mean 0.6, sample std sqrt(3.04) = 1.744, standard error 1.007: one photo carries the mean
+    assert not metrics.clear_gain([2.6, -0.6, -0.2])
+    assert metrics.clear_gain([2.6, 1.4, 1.8])  # the same spread around a mean of 1.93
+    assert not metrics.clear_gain([5.0]) and not metrics.clear_gain([])  # no spread to compare with

@@ -262,6 +262,25 @@ def test_the_weak_plan_avoids_the_gaps_the_check_widens():
     assert [f.index for f in weakest_plan(five, PlanConfig(n_mid=2, n_extra=0), fit)] == [0.75, 3.25]
 
 
+def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_are_not_written():
+    from sparself.evaluation.selfcheck import SelfCheckConfig, _confirmed, _Decision, _Scores
+
+    cfg = SelfCheckConfig()
+    keep = np.array([True, False])
+    without = [np.array([15.0, 16.0]), np.array([17.0])]
+    scores = [_Scores(w, {}) for w in without]
+    noisy = [
+        _Decision(keep, np.array([1.0, -1.0]), np.array([17.5, 15.7])),
+        _Decision(np.zeros(2, bool), np.zeros(2), without[1]),
+    ]
+    decided, unclear = _confirmed(noisy, scores, cfg)  # +2.5 and -0.3 dB: mean 1.1, standard error 1.4
+    assert unclear and not any(d.keep.any() for d in decided)
+    assert all(np.array_equal(d.chosen, w) for d, w in zip(decided, without))  # scored as without views
+    steady = [replace(noisy[0], chosen=np.array([16.2, 17.1])), noisy[1]]  # +1.2 and +1.1 dB
+    decided, unclear = _confirmed(steady, scores, cfg)
+    assert not unclear and decided is steady
+
+
 def test_the_self_check_record_round_trips_through_json():
     views = (ViewCheck("n", 1.5, 0.3, True), ViewCheck("m", 2.5, None, False))
     rec = SelfCheck("3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, views, "r")
