@@ -392,13 +392,12 @@ def self_check(
     scored = _scores(small, folds, fits, cfg)
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
-    decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), [s for s, _ in scored], cfg)
+    scores = [s for s, _ in scored]
+    decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), scores, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
-    record = _record(small, planned, folds, [s for s, _ in scored], decided, weights, w, keep, gains, fix, cfg, plan)
-    if unclear:
-        record = replace(record, reason=record.reason.replace(" improves ", " clearly improves ", 1))
+    record = _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan, unclear)
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
     return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
 
@@ -414,7 +413,9 @@ def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[li
     return [_Decision(np.zeros(len(d.keep), bool), d.gains, s.without) for d, s in zip(decided, scores)], True
 
 
-def _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str) -> SelfCheck:
+def _record(
+    small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str, unclear: bool
+) -> SelfCheck:
     """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos."""
     without = float(np.concatenate([s.without for s in scores]).mean())
     best = float(np.concatenate([d.chosen for d in decided]).mean())
@@ -428,7 +429,7 @@ def _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix
         psnr_kept=best if keep.any() else None,
         weight=w if keep.any() else None,
         views=_view_checks(planned, gains, keep),
-        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked),
+        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, unclear),
         fixer=None if fix is None else fix.record,
     )
 
@@ -502,12 +503,14 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
 
 
-def _reason(recon: str, kept: int, planned: int, w: float, best: float, without: float, unchecked: int) -> str:
+def _reason(
+    recon: str, kept: int, planned: int, w: float, best: float, without: float, unchecked: int, unclear: bool
+) -> str:
     aside = f" ({unchecked} planned between the neighbours of a held-back photo could not be checked)" * (unchecked > 0)
     if kept == 0:
         return (
-            f"no synthesized view improves the {recon} fit on the held-back input photos ({without:.2f} dB without "
-            f"views){aside}: the capture is written without synthesized views"
+            f"no synthesized view {'clearly ' * unclear}improves the {recon} fit on the held-back input photos "
+            f"({without:.2f} dB without views){aside}: the capture is written without synthesized views"
         )
     return (
         f"kept {kept} of {planned} synthesized views at weight {w:g}: the {recon} fit renders the "
