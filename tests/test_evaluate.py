@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from planescene import F, H, W, render_plane
 from sparself.capture.images import resize_image, save_image
@@ -299,7 +300,7 @@ def test_the_fixers_views_are_scored_wherever_it_was_used_even_when_no_view_was_
     used = lambda pairs, steps, seed: FixerFit(Fixer(), FixerCheck(pairs.names, 20.0, 19.0, 21.0, True))  # noqa: E731
     monkeypatch.setattr(selfcheck, "validated_fixer", used)
     strict = checked_row.check_config
-    monkeypatch.setattr(checked_row, "check_config", lambda ev, r: replace(strict(ev, r), min_gain=99.0))
+    monkeypatch.setattr(checked_row, "check_config", lambda ev, r, s: replace(strict(ev, r, s), min_gain=99.0))
     hooks, _ = _hooks()
     hooks["reconstructors"] = {"nerf": hooks["reconstructors"]["nerf"]}
     s = ev.evaluate([_capture(tmp_path / "cap")], tmp_path / "out", _tiny_cfg(), **hooks).scenes[0]
@@ -308,3 +309,46 @@ def test_the_fixers_views_are_scored_wherever_it_was_used_even_when_no_view_was_
     fixed = rows[NETWORK_FIXED]
     assert isinstance(fixed, SeededSets) and [p.seed for p in fixed.per_seed] == [0, 1]
     assert all(len(p.frames) == len(rows["base"].frames) for p in fixed.per_seed)
+
+
+class _SeededRenderer(_NearestRenderer):
+    """The nearest photo, brightened by its fit's seed: a reconstructor whose result depends on its seed."""
+
+    def __init__(self, scene: Scene, seed: int):
+        super().__init__(scene)
+        self.seed = seed
+
+    def render(self, pose, camera):
+        return np.clip(super().render(pose, camera) + 0.02 * self.seed, 0, 1)
+
+
+def test_every_row_of_a_seed_is_fitted_with_that_seeds_reconstruction_seed(tmp_path, monkeypatch):
+    from sparself.evaluation.results import paired_change
+    from sparself.recon import nerf
+    from sparself.recon.pool import Fitter
+
+    seen: list[tuple[int, int]] = []  # (views, seed) of every fit
+
+    def fit(scene, seed=0, **_):
+        seen.append((len(scene), seed))
+        return _SeededRenderer(scene, seed)
+
+    monkeypatch.setattr(nerf, "fit", fit)
+    hooks, _ = _hooks()
+    hooks["reconstructors"] = {"nerf": Fitter("nerf", {"seed": 0})}
+    s = ev.evaluate([_capture(tmp_path / "cap")], tmp_path / "out", _tiny_cfg(recon_seed=5), **hooks).scenes[0]
+    rows = s.densification["nerf"].rows
+    for key in ("base", "sparself", "blend", "oracle", "sparself_checked"):
+        row = rows[key]
+        assert isinstance(row, SeededSets) and [p.seed for p in row.per_seed] == [0, 1], key
+    base = rows["base"]
+    assert isinstance(base, SeededSets)
+    b0, b1 = (p.raw_mean("psnr") for p in base.per_seed)
+    assert b0 != b1  # N alone was fitted twice, with seeds 5 and 6
+    assert {seed for _, seed in seen} == {5, 6}  # the self-check's fits too
+    assert sum(1 for views, _ in seen if views == 5) >= 2  # N alone, once per seed
+    net = rows["sparself"]
+    assert isinstance(net, SeededSets)
+    diffs = [p.raw_mean("psnr") - q.raw_mean("psnr") for p, q in zip(net.per_seed, base.per_seed)]
+    change, spread = paired_change(net, base)
+    assert change == pytest.approx(np.mean(diffs)) and spread == pytest.approx(np.std(diffs))

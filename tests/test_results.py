@@ -20,6 +20,7 @@ from sparself.evaluation.results import (
     ScoredSet,
     SeededSets,
     WeightChoice,
+    paired_change,
 )
 from sparself.evaluation.results_file import Results, Settings, read_results
 from sparself.evaluation.scene_results import PlannedPose, SceneFailure, SceneResult, SplitInfo, Timings
@@ -118,3 +119,16 @@ def test_a_file_that_is_not_results_fails_with_one_line_naming_it(tmp_path, cont
     assert msg.startswith(f"{path}: not the results of a sparself evaluation") and why in msg and "\n" not in msg
     with pytest.raises(InputError, match="nothing.json"):
         read_results(tmp_path / "nothing.json")
+
+
+def _seeded(psnrs: list[float]) -> SeededSets:
+    return SeededSets([ScoredSet([FrameScore("a.png", 1, p, 0.5, None)], seed=k) for k, p in enumerate(psnrs)])
+
+
+def test_a_change_over_n_is_taken_seed_against_seed_where_both_rows_have_the_seeds():
+    # per seed +1 and 0 dB: mean 0.5, std 0.5; the rows' own spreads (1.0 and 1.5) do not enter
+    assert paired_change(_seeded([21.0, 23.0]), _seeded([20.0, 23.0])) == pytest.approx((0.5, 0.5))
+    # N fitted once: the difference of the means, with the row's spread over seeds
+    once = ScoredSet([FrameScore("a.png", 1, 20.0, 0.5, None)])
+    assert paired_change(_seeded([21.0, 23.0]), once) == pytest.approx((2.0, 1.0))
+    assert paired_change(None, once) == (None, None)

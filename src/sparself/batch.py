@@ -285,9 +285,10 @@ def _add_seeds(rows: dict[str, Row], name: str, more: SeededSets) -> None:
 
 def merge_seeds(parts: list[tuple[int, SceneResult, Path]]) -> SceneResult:
     """One capture's evaluate result from its seed units: (seed, scene result, unit folder relative to
-    the report). The lowest seed's result carries the baselines and the oracle; the per-seed sets of the
-    others (sparself's views and every per-seed reconstruction row, each with its own decision) are added
-    and their summaries (and the oracle shares) recomputed over all seeds."""
+    the report). The lowest seed's result carries the view-synthesis baselines; the per-seed sets of the
+    others (sparself's views and every reconstruction row, N alone and the oracle included, each fitted with
+    its seed's reconstruction seed and with its own decision) are added and their summaries (and the oracle
+    shares) recomputed over all seeds."""
     parts = sorted(parts, key=lambda p: p[0])
     merged = copy.deepcopy(parts[0][1])
     merged.examples, merged.timings = {}, Timings()

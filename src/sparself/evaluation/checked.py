@@ -16,15 +16,17 @@ from typing import Callable, Literal
 
 from sparself.capture.scene import Scene
 from sparself.evaluation.fixing import fixed
-from sparself.evaluation.instruments import fit_each, renders, with_images
+from sparself.evaluation.instruments import fit_each, fit_seed, renders, with_images
 from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.selfcheck import (
     Checked,
+    FitMany,
     SelfCheckConfig,
     at_check_size,
     check_cameras,
     check_fits,
+    check_settings,
     check_workers,
     checked_views,
     remembering,
@@ -45,13 +47,14 @@ CHECKED_AS: dict[str, Literal["3dgs", "nerf", "mpi"]] = {
 }
 
 
-def check_config(ev: SceneEval, rname: str) -> SelfCheckConfig | None:
-    """The self-check ``densify --recon`` runs for reconstructor ``rname`` (None: it has none)."""
+def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None:
+    """The self-check ``densify --recon`` runs for reconstructor ``rname`` on network seed ``seed``, its fits
+    seeded like that seed's rows (None: it has none)."""
     recon = CHECKED_AS.get(rname)
     if recon is None or not ev.cfg.checked or not ev.net_synths:
         return None
     return SelfCheckConfig(
-        recon=recon, plan_mode=ev.cfg.check_plan, check_steps=ev.cfg.check_steps, check_seed=ev.cfg.recon_seed
+        recon=recon, plan_mode=ev.cfg.check_plan, check_steps=ev.cfg.check_steps, check_seed=fit_seed(ev.cfg, seed)
     )
 
 
@@ -68,34 +71,38 @@ def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig
 
 
 def checked_fits(
-    ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, base: ScoredSet
+    ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, base: dict[int, ScoredSet]
 ) -> None:
     """Per seed: what densify writes for ``rname``, fitted and scored on the held-out photos, into
     ``entry``'s NETWORK_CHECKED row (each seed's self-check record as its decision), and the fixer's views
-    into its NETWORK_FIXED row where it was used."""
-    cfg = check_config(ev, rname)
-    if cfg is None:
+    into its NETWORK_FIXED row where it was used. ``base``: each seed's N-only fit, the row where nothing
+    is kept."""
+    seeds = list(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_synths)))
+    maybe = [check_config(ev, rname, s) for s in seeds]
+    cfgs = [c for c in maybe if c is not None]
+    if not cfgs or len(cfgs) < len(maybe):
         return
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
     sets, views = SeededSets(), SeededSets()
-    with FitPool(check_workers(cfg)) as pool:
-        fits = remembering(check_fits(cfg, pool))  # the fits without views recur with every seed
-        done = [checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits)[1] for synth in ev.net_synths]
-        fixed_views = [
-            _fixed_targets(ev, k, c, cfg, f"{NETWORK_FIXED} ({rname}) seed {ev.cfg.first_seed + k}", fits)
-            for k, c in enumerate(done)
-        ]
+    done, fixed_views = [], []
+    with FitPool(check_workers(cfgs[0])) as pool:
+        memos: dict[tuple, FitMany] = {}  # the fits without views recur with every seed of the same fit seed
+        for seed, synth, cfg in zip(seeds, ev.net_synths, cfgs):
+            key = tuple(sorted(check_settings(cfg).items()))
+            fits = memos[key] = memos.get(key) or remembering(check_fits(cfg, pool))
+            done.append(checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits)[1])
+            label = f"{NETWORK_FIXED} ({rname}) seed {seed}"
+            fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, done[-1], cfg, label, fits))
     kept = [k for k, c in enumerate(done) if c.frames]
     scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
-    fitted = dict(zip(kept, fit_each(fit, scenes)))
-    for k, checked in enumerate(done):
-        seed = ev.cfg.first_seed + k
+    fitted = dict(zip(kept, fit_each(fit, scenes, [fit_seed(ev.cfg, seeds[k]) for k in kept])))
+    for k, (seed, checked) in enumerate(zip(seeds, done)):
         label = f"{rname} ({NETWORK_CHECKED} seed {seed})"
         if k in fitted:
             views_n = len(ev.inputs) + len(checked.frames)
             scored = ev.score(renders(fitted[k], ev.full, ev.targets), label, ev.scored, seed=seed, views=views_n)
-        else:  # nothing kept: the capture is the N photos, and so is its fit
-            scored = replace(base, seed=seed)
+        else:  # nothing kept: the capture is the N photos, and so is its fit (that seed's)
+            scored = replace(base[seed], seed=seed)
         scored.decision = checked.record
         sets.per_seed.append(scored)
         fx = fixed_views[k]

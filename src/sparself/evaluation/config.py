@@ -67,7 +67,9 @@ class EvalConfig:
         "CPU 3DGS optimisation steps per training view (a short run); auto: the reconstructor's own "
         "(1500 steps, at least 60 per view)",
     )
-    recon_seed: int = option(0, "seed of the reconstructors")
+    recon_seed: int = option(
+        0, "seed of the reconstructors: every row of network seed k, N alone included, is fitted with recon_seed + k"
+    )
     max_eval: int | None = option(None, "score at most this many held-out frames per scene (evenly chosen; auto: all)")
     checked: bool = option(
         True,

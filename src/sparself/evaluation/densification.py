@@ -14,8 +14,11 @@ from sparself.capture.scene import Scene
 from sparself.evaluation.checked import checked_fits
 from sparself.evaluation.instruments import (
     fit_each,
+    fit_seed,
+    paired,
     reconstructor,
     renders,
+    with_fit_seed,
     with_images,
 )
 from sparself.evaluation.results import (
@@ -26,6 +29,7 @@ from sparself.evaluation.results import (
     ORACLE,
     ReconResult,
     RowError,
+    ScoredSet,
     SeededSets,
 )
 from sparself.evaluation.scene_eval import SceneEval
@@ -51,50 +55,74 @@ def oracle_scene(ev: SceneEval) -> Scene:
     return with_images(ev.inputs, extra, imgs)
 
 
-def densified_scenes(ev: SceneEval) -> list[tuple[str, int | None, Scene]]:
-    """(key, network seed or None, scene) for every reconstruction: N alone, N + each seed's network
-    views, N + each densify-baseline's views, and the oracle."""
-    runs: list[tuple[str, int | None, Scene]] = [(BASE, None, ev.inputs)]
+def run_seeds(ev: SceneEval) -> list[int]:
+    """The run's seeds: each is a network seed and, through :func:`fit_seed`, a reconstruction seed."""
+    return list(range(ev.cfg.first_seed, ev.cfg.first_seed + ev.cfg.seeds))
+
+
+def densified_scenes(ev: SceneEval, seeds: list[int]) -> list[tuple[str, int, Scene]]:
+    """(key, seed, scene) for every reconstruction: per seed of ``seeds``, N alone, each densify-baseline's
+    views and the oracle; N + each network seed's views (with that seed)."""
+    runs: list[tuple[str, int, Scene]] = [(BASE, s, ev.inputs) for s in seeds]
     for seed, imgs in enumerate(ev.net_planned, start=ev.cfg.first_seed):
         runs.append((NETWORK, seed, with_images(ev.inputs, ev.planned, imgs)))
     for b in ev.cfg.densify_baselines:
         if b in ev.baseline_planned:
-            runs.append((b, None, with_images(ev.inputs, ev.planned, ev.baseline_planned[b])))
+            runs += [(b, s, with_images(ev.inputs, ev.planned, ev.baseline_planned[b])) for s in seeds]
     if ev.cfg.oracle and ev.split.kind == "dense" and ev.mid_truth:
-        runs.append((ORACLE, None, oracle_scene(ev)))
+        oracle = oracle_scene(ev)
+        runs += [(ORACLE, s, oracle) for s in seeds]
     return runs
 
 
 def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult) -> None:
     """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
-    (which keeps what was done if a fit fails: the network's seeds fitted so far, unsummarised)."""
-    net, base = SeededSets(summarized=False), None
-    runs = densified_scenes(ev)
-    fitted = fit_each(fit, [sc for _, _, sc in runs])
+    (which keeps what was done if a fit fails: the seeds fitted so far, unsummarised). Every row is per seed,
+    fitted with that seed's reconstruction seed; a reconstructor that takes no seed fits the rows without
+    the network's views once (a single set, as without seeds)."""
+    seeds, each = run_seeds(ev), paired(fit)
+    runs = densified_scenes(ev, seeds if each else seeds[:1])
+    fitted = fit_each(fit, [sc for _, _, sc in runs], [fit_seed(ev.cfg, s) for _, s, _ in runs])
     for (key, seed, sc), renderer in tqdm(
         zip(runs, fitted), total=len(runs), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
     ):
         if not entry.fitted:
             entry.fitted, entry.backend = True, getattr(renderer, "backend", None)
-        imgs = render_targets(ev, renderer)
-        label = f"{rname} {len(sc)} views ({key if seed is None else f'{key} seed {seed}'})"
-        scored = ev.score(imgs, label, ev.scored, seed=seed, views=len(sc))
-        base = scored if key == BASE else base
-        if seed is None:
-            entry.rows[key] = scored
+        per_seed = key == NETWORK or each
+        label = f"{rname} {len(sc)} views ({f'{key} seed {seed}' if per_seed else key})"
+        example = key == NETWORK or seed == seeds[0]  # the other rows' images differ by seed only in noise
+        scored = ev.score(
+            render_targets(ev, renderer),
+            label,
+            ev.scored,
+            seed=seed if per_seed else None,
+            views=len(sc),
+            example=example,
+        )
+        if per_seed:
+            row = entry.rows.setdefault(key, SeededSets(summarized=False))
+            assert isinstance(row, SeededSets)
+            row.per_seed.append(scored)
         else:
-            net.per_seed.append(scored)
-            entry.rows.setdefault(NETWORK, net)
-    net.summarized = True
+            entry.rows[key] = scored
+    for row in entry.rows.values():
+        if isinstance(row, SeededSets):
+            row.summarized = True
     if ev.cfg.weighted and ev.net_planned:
         try:
             weighted_fits(ev, rname, fit, entry)
         except Exception as e:  # the plain results stand without it
             log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
             entry.rows[NETWORK_WEIGHTED] = RowError(f"{type(e).__name__}: {e}")
-    if base is not None:
+    base = entry.rows.get(BASE)
+    if isinstance(base, (SeededSets, ScoredSet)):
+        by_seed = (
+            {p.seed: p for p in base.per_seed if p.seed is not None}
+            if isinstance(base, SeededSets)
+            else dict.fromkeys(seeds, base)
+        )
         try:
-            checked_fits(ev, rname, fit, entry, base)
+            checked_fits(ev, rname, fit, entry, by_seed)
         except Exception as e:  # the other rows stand without it
             log.warning("%s: %s checked densification failed: %s", ev.name, rname, e)
             entry.rows[NETWORK_CHECKED] = RowError(f"{type(e).__name__}: {e}")
@@ -113,12 +141,13 @@ def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], e
     run's first seed (its network's views synthesized again without the held-back inputs)."""
     if ev.validation is None:
         ev.validation = validation_views(ev.inputs, ev.planned, ev.net_synths[0])
-    choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, fit)
+    first = with_fit_seed(fit, fit_seed(ev.cfg, ev.cfg.first_seed))
+    choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, first)
     choice.chosen_on_seed = ev.cfg.first_seed
     sets = SeededSets()
-    seeds = range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_planned))
+    seeds = run_seeds(ev)[: len(ev.net_planned)]
     scenes = [weighted_scene(ev.inputs, ev.planned, v, c, choice.weight) for v, c in zip(ev.net_planned, ev.net_conf)]
-    for seed, sc, r in zip(seeds, scenes, fit_each(fit, scenes)):
+    for seed, sc, r in zip(seeds, scenes, fit_each(fit, scenes, [fit_seed(ev.cfg, s) for s in seeds])):
         label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
         scored = ev.score(render_targets(ev, r), label, ev.scored, seed=seed, views=len(sc))
         scored.decision = choice

@@ -120,11 +120,31 @@ def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     return Fitter(name, kw)
 
 
-def fit_each(fit: Callable[[Scene], Renderer], scenes: list[Scene]) -> Iterable[Renderer]:
+def fit_each(
+    fit: Callable[[Scene], Renderer], scenes: list[Scene], seeds: list[int] | None = None
+) -> Iterable[Renderer]:
     """A renderer per scene, in order: all at once, side by side where that pays, for a reconstructor with
-    its settings (:class:`~sparself.recon.pool.Fitter`); one after the other as they are read for any other
-    ``fit`` (a test's)."""
-    return fit.many(scenes) if isinstance(fit, Fitter) else (fit(sc) for sc in scenes)
+    its settings (:class:`~sparself.recon.pool.Fitter`; scene k with reconstruction seed ``seeds[k]`` when
+    given); one after the other as they are read for any other ``fit`` (a test's, which takes no seed)."""
+    return fit.many(scenes, seeds=seeds) if isinstance(fit, Fitter) else (fit(sc) for sc in scenes)
+
+
+def fit_seed(cfg: EvalConfig, seed: int) -> int:
+    """The reconstruction seed paired with network seed ``seed``: every row of that seed (N alone included)
+    is fitted with it, so that a row's gain over N is measured fit against fit, and the spread over seeds
+    holds the reconstructor's own randomness, which on a sparse capture moves N alone by a dB or more."""
+    return cfg.recon_seed + seed
+
+
+def with_fit_seed(fit: Callable[[Scene], Renderer], seed: int) -> Callable[[Scene], Renderer]:
+    """``fit`` with reconstruction seed ``seed`` where it takes one (itself otherwise)."""
+    return fit.with_seed(seed) if isinstance(fit, Fitter) else fit
+
+
+def paired(fit: Callable[[Scene], Renderer]) -> bool:
+    """Whether ``fit``'s results depend on the reconstruction seed (so rows without the network's views are
+    fitted once per seed, not once)."""
+    return isinstance(fit, Fitter) and fit.seeded
 
 
 def with_images(scene: Scene, extra: list[Frame], images, confidence: np.ndarray | None = None) -> Scene:

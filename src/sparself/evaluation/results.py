@@ -250,6 +250,23 @@ def mean_of(row: Row | None, metric: str, group: str | None = None) -> tuple[flo
     return (None, None) if row is None else row.mean(metric, group)
 
 
+def paired_change(row: Row | None, base: Row | None, metric: str = "psnr") -> tuple[float | None, float | None]:
+    """(mean, std over seeds or None) of ``row`` minus ``base``: seed against seed where both hold the same
+    seeds (the reconstruction seed is shared within a seed, so its noise cancels in the difference), else
+    the difference of their means with ``row``'s spread; (None, None) where either has no mean."""
+    (r, sd), (b, _) = mean_of(row, metric), mean_of(base, metric)
+    if r is None or b is None:
+        return None, None
+    if isinstance(row, SeededSets) and isinstance(base, SeededSets):
+        mine = {p.seed: p.raw_mean(metric) for p in row.per_seed}
+        theirs = {p.seed: p.raw_mean(metric) for p in base.per_seed}
+        if mine.keys() == theirs.keys() and None not in mine:
+            diffs = [mine[k] - theirs[k] for k in mine if math.isfinite(mine[k] - theirs[k])]
+            if diffs:
+                return float(np.mean(diffs)), (float(np.std(diffs)) if len(diffs) > 1 else None)
+    return r - b, sd
+
+
 def is_network_row(name: str) -> bool:
     """Whether a reconstructor's row is fitted on the network's views (``sparself``, ``sparself_*``): those
     get a share of the oracle's gain."""

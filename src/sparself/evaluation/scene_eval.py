@@ -73,16 +73,18 @@ class SceneEval:
         held_out: bool = True,
         seed: int | None = None,
         views: int | None = None,
+        example: bool = True,
     ) -> ScoredSet:
         """Score ``images`` against the real photos of frames ``idx``; for held-out frames among the
-        examples, also save the images (and the ground truth once) for the report."""
+        examples (unless ``example`` is False), also save the images (and the ground truth once) for the
+        report."""
         rows = []
         for k, i in enumerate(idx):
             frame = self.full.frames[i]
             truth = load_truth(frame, self.full.image_size(i))
             sc = score(images[k], truth, self.cfg.lpips)
             rows.append(FrameScore(frame.name, i, sc.psnr, sc.ssim, sc.lpips, group=self.split.group(i)))
-            if held_out and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
+            if held_out and example and self.ex_dir is not None and i in self.scored[: self.cfg.examples]:
                 self._save_example(frame.name, label, images[k], truth)
         return ScoredSet(rows, seed=seed, views=views)
 

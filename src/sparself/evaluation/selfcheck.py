@@ -143,7 +143,7 @@ class Checked:
 FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
 
 
-def _check_settings(cfg: SelfCheckConfig) -> dict:
+def check_settings(cfg: SelfCheckConfig) -> dict:
     kw: dict = {} if cfg.recon == "mpi" else {"seed": cfg.check_seed, "progress": False}
     if cfg.check_steps is not None and cfg.recon != "mpi":
         kw["steps"] = cfg.check_steps
@@ -155,7 +155,7 @@ def _check_settings(cfg: SelfCheckConfig) -> dict:
 def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
     """fits(scenes) -> renderers for ``cfg.recon`` with the self-check's steps and seed, run by ``pool``
     (default: one after the other in this process)."""
-    fitter, pool = Fitter(cfg.recon, _check_settings(cfg)), pool or FitPool(1)
+    fitter, pool = Fitter(cfg.recon, check_settings(cfg)), pool or FitPool(1)
     return lambda scenes: fitter.many(scenes, pool)
 
 

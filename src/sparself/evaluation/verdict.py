@@ -20,6 +20,7 @@ from sparself.evaluation.results import (
     SeededSets,
     finite,
     mean_of,
+    paired_change,
     share_of_oracle_gain,
 )
 from sparself.evaluation.scene_results import SceneResult
@@ -62,7 +63,8 @@ def decide(change: float | None, spread: float | None) -> str:
 @dataclass
 class Verdict:
     """One reconstructor at one N over the captures whose instrument holds: the mean PSNR change from N to
-    N + sparself, the mean spread (std over seeds) of N + sparself, the mean share of the oracle's gain (where
+    N + sparself, the mean spread of that change over seeds (each seed's N + sparself against its N, fitted
+    with the same reconstruction seed), the mean share of the oracle's gain (where
     measurable) and the captures whose instrument failed (more real photos did not help: not counted)."""
 
     recon: str
@@ -112,10 +114,11 @@ def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
             failed.append(capture(s))
             continue
         base = mean_of(d.row(BASE), "psnr")[0]
-        net, sd = mean_of(d.row(row), "psnr")
-        if base is None or net is None:
+        net = mean_of(d.row(row), "psnr")[0]
+        change, sd = paired_change(d.row(row), d.row(BASE))
+        if base is None or net is None or change is None:
             continue
-        changes.append(net - base)
+        changes.append(change)
         spreads.append(sd)
         oracle = mean_of(d.row(ORACLE), "psnr")[0]
         share = share_of_oracle_gain(base, net, oracle)

@@ -9,7 +9,7 @@ import multiprocessing
 import os
 import signal
 from concurrent.futures import Future, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sparself.capture.scene import Scene
@@ -59,9 +59,13 @@ class FitPool:
 
     def fit(self, name: str, scenes: list[Scene], **cfg) -> list[Renderer]:
         """Fit reconstructor ``name`` with keyword settings ``cfg`` on each scene; in order."""
-        if self._pool is None or len(scenes) < 2:
-            return [_fit(name, sc, cfg) for sc in scenes]
-        futures: list[Future] = [self._pool.submit(_fit, name, sc, cfg) for sc in scenes]
+        return self.run([(name, sc, cfg) for sc in scenes])
+
+    def run(self, jobs: list[tuple[str, Scene, dict[str, Any]]]) -> list[Renderer]:
+        """Fit each (reconstructor, scene, settings); in order."""
+        if self._pool is None or len(jobs) < 2:
+            return [_fit(*job) for job in jobs]
+        futures: list[Future] = [self._pool.submit(_fit, *job) for job in jobs]
         return [f.result() for f in futures]
 
 
@@ -88,9 +92,21 @@ class Fitter:
     def __call__(self, scene: Scene) -> Renderer:
         return get_reconstructor(self.name)(scene, **self.settings)
 
-    def many(self, scenes: list[Scene], pool: FitPool | None = None) -> list[Renderer]:
-        """One renderer per scene, in order; run by ``pool``, else by a pool opened for these fits."""
+    @property
+    def seeded(self) -> bool:
+        """Whether its fits depend on a seed (an MPI's do not)."""
+        return "seed" in self.settings
+
+    def with_seed(self, seed: int) -> "Fitter":
+        """The same fitter with reconstruction seed ``seed`` (itself when it takes none)."""
+        return replace(self, settings={**self.settings, "seed": seed}) if self.seeded else self
+
+    def many(self, scenes: list[Scene], pool: FitPool | None = None, seeds: list[int] | None = None) -> list[Renderer]:
+        """One renderer per scene, in order (scene k fitted with seed ``seeds[k]`` when given); run by ``pool``,
+        else by a pool opened for these fits."""
+        each = [self] * len(scenes) if seeds is None else [self.with_seed(s) for s in seeds]
+        jobs = [(self.name, sc, f.settings) for sc, f in zip(scenes, each, strict=True)]
         if pool is not None:
-            return pool.fit(self.name, scenes, **self.settings)
+            return pool.run(jobs)
         with FitPool(min(side_by_side(self.name), len(scenes))) as own:
-            return own.fit(self.name, scenes, **self.settings)
+            return own.run(jobs)
