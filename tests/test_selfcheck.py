@@ -281,10 +281,31 @@ def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_ar
     assert not unclear and decided is steady
 
 
+def test_kept_views_whose_gain_is_within_what_the_fits_seed_alone_changes_are_not_written():
+    from sparself.evaluation.selfcheck import SelfCheckConfig, _confirmed, _Decision, _Scores, seed_change
+
+    cfg = SelfCheckConfig()
+    without = np.array([15.0, 16.0])
+    steady = [_Decision(np.array([True, True]), np.array([1.2, 1.1]), np.array([16.2, 17.1]))]  # +1.15 dB
+    # the fits without views at the second seed: +1.5 and +1.0 dB at the same photos, a 1.25 dB change
+    moved = [_Scores(without, {}, other=np.array([16.5, 17.0]))]
+    assert seed_change(moved) == pytest.approx(1.25)
+    decided, unclear = _confirmed(steady, moved, cfg)
+    assert unclear and not decided[0].keep.any()
+    # a second seed that moves the fits by -0.2 dB on average: the +1.15 dB gain stands
+    still = [_Scores(without, {}, other=np.array([14.7, 15.9]))]
+    assert seed_change(still) == pytest.approx(0.2)
+    decided, unclear = _confirmed(steady, still, cfg)
+    assert not unclear and decided is steady
+    assert seed_change([_Scores(without, {})]) is None  # no second seed fitted: the rule does not apply
+
+
 def test_the_self_check_record_round_trips_through_json():
     views = (ViewCheck("n", 1.5, 0.3, True), ViewCheck("m", 2.5, None, False))
     rec = SelfCheck("3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, views, "r")
     assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
+    seeded = replace(rec, psnr_other_seed=19.75)
+    assert SelfCheck.from_json(json.loads(json.dumps(seeded.to_json()))) == seeded
     assert rec.kept == ("n",)
 
 

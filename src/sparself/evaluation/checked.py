@@ -29,6 +29,7 @@ from sparself.evaluation.selfcheck import (
     check_settings,
     check_workers,
     checked_views,
+    other_seed,
     remembering,
 )
 from sparself.recon import Renderer
@@ -87,10 +88,16 @@ def checked_fits(
     done, fixed_views = [], []
     with FitPool(check_workers(cfgs[0])) as pool:
         memos: dict[tuple, FitMany] = {}  # the fits without views recur with every seed of the same fit seed
+
+        def fits_for(c: SelfCheckConfig) -> FitMany:
+            key = tuple(sorted(check_settings(c).items()))
+            memos[key] = memos.get(key) or remembering(check_fits(c, pool))
+            return memos[key]
+
         for seed, synth, cfg in zip(seeds, ev.net_synths, cfgs):
-            key = tuple(sorted(check_settings(cfg).items()))
-            fits = memos[key] = memos.get(key) or remembering(check_fits(cfg, pool))
-            done.append(checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits)[1])
+            fits, second = fits_for(cfg), other_seed(cfg)
+            other = None if second is None else fits_for(second)  # the next seed's fits without views, once
+            done.append(checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits, other=other)[1])
             label = f"{NETWORK_FIXED} ({rname}) seed {seed}"
             fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, done[-1], cfg, label, fits))
     kept = [k for k, c in enumerate(done) if c.frames]

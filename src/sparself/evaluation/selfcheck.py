@@ -14,8 +14,10 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
   hole twice as wide as any the final fit, which has that photo, ever has. The second fold widens the gaps
   the first leaves alone, so together they measure every gap. Views past the end inputs are judged by a
   third fold that holds both ends back, through stand-ins: the same extrapolations made one input further
-  in. A view no fold can measure is neither planned nor kept. Independent fits run side by side
-  (:mod:`sparself.recon.pool`).
+  in. A view no fold can measure is neither planned nor kept. The kept views must gain more than their
+  spread over the held-back photos and more than a second seed alone moves the fits without views there
+  (:func:`seed_change`): on a sparse capture that is a dB or more, and a gain within it is the fit's noise.
+  Independent fits run side by side (:mod:`sparself.recon.pool`).
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
@@ -110,6 +112,11 @@ class SelfCheckConfig:
         "merge each view with the render of the fit without it, pixel by pixel, by a small network trained on "
         "the held-back input photos (used only when it beats both the views and the render there)",
     )
+    seed_noise: bool = option(
+        True,
+        "fit each fold without views at a second seed too, and keep views only when their gain at the held-back "
+        "photos exceeds what the change of seed alone does there (a sparse capture's fit moves by a dB or more)",
+    )
 
     def validate(self) -> None:
         check_choices(self)
@@ -150,6 +157,12 @@ def check_settings(cfg: SelfCheckConfig) -> dict:
         if backend(cfg.recon) == "splat":
             kw["min_steps_per_view"] = 0  # the CPU path raises steps to 60 per view otherwise
     return kw
+
+
+def other_seed(cfg: SelfCheckConfig) -> SelfCheckConfig | None:
+    """The check at the second seed its folds are fitted with, without views (None: ``cfg.seed_noise`` is
+    off, or the reconstructor takes no seed)."""
+    return replace(cfg, check_seed=cfg.check_seed + 1) if cfg.seed_noise and "seed" in check_settings(cfg) else None
 
 
 def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
@@ -297,15 +310,18 @@ def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold],
 
 @dataclass
 class _Scores:
-    """A fold's held-back PSNR (one per held-back photo): without views, and with its views per weight."""
+    """A fold's held-back PSNR (one per held-back photo): without views, with its views per weight, and
+    without views at the second seed (None: not fitted)."""
 
     without: np.ndarray
     by_weight: dict[float, np.ndarray]
+    other: np.ndarray | None = None
 
 
-def _scores(small: Scene, folds: list[_Fold], fits: FitMany, cfg):
+def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfg):
     """Each fold's views with their confidence lowered where they agree with its render, and every fold's fits
-    with its views at each weight, all fitted at once: [(scores, lowered views)] per fold."""
+    with its views at each weight, all fitted at once: [(scores, lowered views)] per fold (``others``: each
+    fold's fit without views at the second seed, or None)."""
     lowered = [
         replace(
             f.synthesized,
@@ -316,9 +332,10 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, cfg):
     scenes = [sc for f, v in zip(folds, lowered) for sc in weight_scenes(small, f.frames, v, cfg.check_weights, f.held)]
     fitted = iter(fits(scenes))
     out = []
-    for f, v in zip(folds, lowered):
+    for k, (f, v) in enumerate(zip(folds, lowered)):
         by_weight = {float(w): held_back_psnr(small, next(fitted), f.held) for w in cfg.check_weights}
-        out.append((_Scores(held_back_psnr(small, f.base, f.held), by_weight), v))
+        other = None if others is None else held_back_psnr(small, others[k], f.held)
+        out.append((_Scores(held_back_psnr(small, f.base, f.held), by_weight, other), v))
     return out
 
 
@@ -371,13 +388,15 @@ def self_check(
     cfg: SelfCheckConfig,
     plan: str,
     fits: FitMany | None = None,
+    other: FitMany | None = None,
 ) -> Checked:
     """Keep the planned views that pay (see the module docstring).
 
     inputs: the N input photos (any size, in path order, with sparse points for 3DGS); planned: the views'
     frames; synth: the network ``(scene, targets) -> Synthesized``; final: what it made from all inputs (the
     views that would be written: a Synthesized or (T, H, W, 3) images); plan: how the poses were planned;
-    fits: how the fits run (default: :func:`check_fits`, one after the other).
+    fits: how the fits run (default: :func:`check_fits`, one after the other); other: the same at the second
+    seed (:func:`other_seed`; None: the views' gain is not compared with what the seed alone does).
     Returns the kept views with their exported confidence and the decision, logged in one line."""
     fits = fits or check_fits(cfg)
     small = at_check_size(inputs, cfg)
@@ -387,9 +406,10 @@ def self_check(
         return _nothing_checkable(small, planned, final, fits, cfg, plan)
     views = [[int(i) for i in np.flatnonzero(by == k)] for k in sorted(set(by[by >= 0]))]
     bases = fits([validation_split(small, h)[1] for h in held])
+    others = None if other is None else other([validation_split(small, h)[1] for h in held])
     made = [_fold(inputs, small, planned, h, v, synth, b) for h, v, b in zip(held, views, bases)]
     folds, fix = _fixed_folds(made, cfg)
-    scored = _scores(small, folds, fits, cfg)
+    scored = _scores(small, folds, fits, others, cfg)
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
@@ -404,13 +424,31 @@ def self_check(
 
 def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[list[_Decision], bool]:
     """The folds' decisions, or none kept anywhere (and True) when the kept views' gains at the held-back
-    photos of the folds that keep any are not a clear gain (:func:`~sparself.core.metrics.clear_gain`):
-    a gain within its own spread over the photos is not evidence that the views help."""
+    photos of the folds that keep any are not a clear gain (:func:`~sparself.core.metrics.clear_gain`) or
+    do not exceed what the second seed alone changes there (:func:`seed_change`): a gain within its own
+    spread over the photos, or within the fit's own noise, is not evidence that the views help."""
     kept = [(d, s) for d, s in zip(decided, scores) if d.keep.any()]
-    if not kept or clear_gain(np.concatenate([d.chosen - s.without for d, s in kept]), cfg.min_gain):
+    if not kept:
         return decided, False
-    log.info("self-check: the kept views' gain at the held-back photos is within its spread there: keeping none")
+    gains = np.concatenate([d.chosen - s.without for d, s in kept])
+    noise = seed_change([s for _, s in kept])
+    if clear_gain(gains, cfg.min_gain) and (noise is None or gains.mean() > noise):
+        return decided, False
+    log.info(
+        "self-check: the kept views' gain at the held-back photos (%+.2f dB) is within its spread there or "
+        "within the change of seed alone (%s dB): keeping none",
+        gains.mean(),
+        "-" if noise is None else f"{noise:.2f}",
+    )
     return [_Decision(np.zeros(len(d.keep), bool), d.gains, s.without) for d, s in zip(decided, scores)], True
+
+
+def seed_change(scores: list[_Scores]) -> float | None:
+    """|mean PSNR change| at the folds' held-back photos from the fits without views at the check's seed to
+    those at the second seed: how far the seed alone moves a fit there (None: no second seed fitted)."""
+    if not scores or any(s.other is None for s in scores):
+        return None
+    return abs(float(np.concatenate([s.other - s.without for s in scores if s.other is not None]).mean()))
 
 
 def _record(
@@ -418,6 +456,7 @@ def _record(
 ) -> SelfCheck:
     """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos."""
     without = float(np.concatenate([s.without for s in scores]).mean())
+    other = None if seed_change(scores) is None else float(np.concatenate([s.other for s in scores]).mean())
     best = float(np.concatenate([d.chosen for d in decided]).mean())
     unchecked = int(np.isnan(gains).sum())
     return SelfCheck(
@@ -429,8 +468,9 @@ def _record(
         psnr_kept=best if keep.any() else None,
         weight=w if keep.any() else None,
         views=_view_checks(planned, gains, keep),
-        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, unclear),
+        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, unclear, other),
         fixer=None if fix is None else fix.record,
+        psnr_other_seed=other,
     )
 
 
@@ -479,18 +519,22 @@ def checked_views(
     cfg: SelfCheckConfig,
     sources: Scene | None = None,
     fits: FitMany | None = None,
+    other: FitMany | None = None,
 ) -> tuple[list[Frame], Checked, Synthesized | np.ndarray]:
     """What ``densify --recon cfg.recon`` writes: (the planned frames, the kept views, the network's answer
     for every planned frame). The poses are ``paper`` (the paper's plan) or, with ``cfg.plan_mode`` weak,
     :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
     :func:`self_check` on ``inputs``; ``fits``: how the fits run (default: :func:`check_fits` in a pool of
-    :func:`check_workers` processes)."""
+    :func:`check_workers` processes), ``other``: at the second seed (default: :func:`other_seed`'s fits in
+    that pool, when ``fits`` is not given)."""
     if fits is None:
         with FitPool(check_workers(cfg)) as pool:
-            return checked_views(inputs, paper, plan, synth, cfg, sources, check_fits(cfg, pool))
+            second = other_seed(cfg)
+            other = None if second is None else check_fits(second, pool)
+            return checked_views(inputs, paper, plan, synth, cfg, sources, check_fits(cfg, pool), other)
     targets = weakest_plan(at_check_size(inputs, cfg), plan, fits) if cfg.plan_mode == "weak" else paper
     final = synth(inputs if sources is None else sources, targets)
-    return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits), final
+    return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits, other), final
 
 
 def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:
@@ -504,13 +548,22 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
 
 
 def _reason(
-    recon: str, kept: int, planned: int, w: float, best: float, without: float, unchecked: int, unclear: bool
+    recon: str,
+    kept: int,
+    planned: int,
+    w: float,
+    best: float,
+    without: float,
+    unchecked: int,
+    unclear: bool,
+    other: float | None = None,
 ) -> str:
     aside = f" ({unchecked} planned between the neighbours of a held-back photo could not be checked)" * (unchecked > 0)
+    seed = "" if other is None else f", {other:.2f} dB at another seed"
     if kept == 0:
         return (
             f"no synthesized view {'clearly ' * unclear}improves the {recon} fit on the held-back input photos "
-            f"({without:.2f} dB without views){aside}: the capture is written without synthesized views"
+            f"({without:.2f} dB without views{seed}){aside}: the capture is written without synthesized views"
         )
     return (
         f"kept {kept} of {planned} synthesized views at weight {w:g}: the {recon} fit renders the "

@@ -89,7 +89,8 @@ class SelfCheck:
     without synthesized views; psnr_by_weight: (synthetic-frame weight, mean PSNR) with every measured view
     (each fold's fits with its own views); psnr_kept: with the kept views only (None: none kept); weight: the
     chosen synthetic-frame weight (None: no view kept); views: every planned view; reason: the decision in
-    words; fixer: the fixer's test (None: not tried)."""
+    words; fixer: the fixer's test (None: not tried); psnr_other_seed: the held-back photos' mean PSNR fitted
+    without views at a second seed (None: not fitted), which bounds how much the fit's seed alone moves them."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -103,6 +104,7 @@ class SelfCheck:
     views: tuple[ViewCheck, ...]
     reason: str
     fixer: FixerCheck | None = None
+    psnr_other_seed: float | None = None
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -129,6 +131,7 @@ class SelfCheck:
             ),
             reason=str(doc["reason"]),
             fixer=FixerCheck.from_json(doc["fixer"]) if doc.get("fixer") else None,
+            psnr_other_seed=_opt_float(doc.get("psnr_other_seed")),
         )
 
 
