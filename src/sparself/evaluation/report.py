@@ -143,7 +143,10 @@ def _protocol_section(doc: Doc, c: Ctx) -> None:
             "without a real photo, e.g. an extrapolation with no margin, keeps sparself's seed-0 view). "
             "Share of oracle gain = "
             "(PSNR(N+synth) − PSNR(N)) / (PSNR(oracle) − PSNR(N)).",
-            f"sparself numbers are mean ± std over {settings.seeds} network seed(s) of the per-scene means.",
+            f"sparself numbers are mean ± std over {settings.seeds} network seed(s) of the per-scene means. Every "
+            "reconstruction of seed k, N alone and the oracle included, is fitted with reconstruction seed "
+            "recon_seed + k (a reconstructor without a seed, such as the MPI, fits the rows without sparself's "
+            "views once); the verdict's change over N and its spread are taken seed against seed.",
             _points_line(settings.points),
         ]
     )
