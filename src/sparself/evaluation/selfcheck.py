@@ -435,11 +435,12 @@ def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[li
     noise = seed_change([s for _, s in kept])
     if clear_gain(gains, cfg.min_gain) and (noise is None or gains.mean() > noise):
         return decided, False
+    seed = "" if noise is None else f" or within the change of seed alone ({noise:.2f} dB)"
     log.info(
-        "self-check: the kept views' gain at the held-back photos (%+.2f dB) is within its spread there or "
-        "within the change of seed alone (%s dB): keeping none",
+        "self-check: the kept views' gain at the held-back photos (%+.2f dB) is within its spread there%s: "
+        "keeping none",
         gains.mean(),
-        "-" if noise is None else f"{noise:.2f}",
+        seed,
     )
     return [_Decision(np.zeros(len(d.keep), bool), d.gains, s.without) for d, s in zip(decided, scores)], True
 
