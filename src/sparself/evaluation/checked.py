@@ -78,15 +78,15 @@ def checked_fits(
     ``entry``'s NETWORK_CHECKED row (each seed's self-check record as its decision), and the fixer's views
     into its NETWORK_FIXED row where it was used. ``base``: each seed's N-only fit, the row where nothing
     is kept."""
-    seeds = list(range(ev.cfg.first_seed, ev.cfg.first_seed + len(ev.net_synths)))
-    maybe = [check_config(ev, rname, s) for s in seeds]
-    cfgs = [c for c in maybe if c is not None]
-    if not cfgs or len(cfgs) < len(maybe):
+    seeds = ev.cfg.seed_list[: len(ev.net_synths)]
+    first = check_config(ev, rname, seeds[0]) if seeds else None
+    if first is None:
         return
+    cfgs = [replace(first, check_seed=fit_seed(ev.cfg, s)) for s in seeds]
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
     sets, views = SeededSets(), SeededSets()
     done, fixed_views = [], []
-    with FitPool(check_workers(cfgs[0])) as pool:
+    with FitPool(check_workers(first)) as pool:
         memos: dict[tuple, FitMany] = {}  # the fits without views recur with every seed of the same fit seed
 
         def fits_for(c: SelfCheckConfig) -> FitMany:

@@ -131,6 +131,12 @@ class EvalConfig:
         if self.weighted and (not self.synthetic_weights or min(self.synthetic_weights) < 0):
             raise ConfigError(f"synthetic_weights must be one or more weights >= 0, got {self.synthetic_weights}")
 
+    @property
+    def seed_list(self) -> list[int]:
+        """The run's seeds, first_seed .. first_seed + seeds - 1: each a network seed and, through
+        :func:`~sparself.evaluation.instruments.fit_seed`, the reconstruction seed of every row of that seed."""
+        return list(range(self.first_seed, self.first_seed + self.seeds))
+
     @classmethod
     def quick(cls, **kw) -> "EvalConfig":
         """Minutes, not hours, on 2 CPU cores: 64 px, 1 seed, 3 network epochs (an under-trained network),

@@ -55,11 +55,6 @@ def oracle_scene(ev: SceneEval) -> Scene:
     return with_images(ev.inputs, extra, imgs)
 
 
-def run_seeds(ev: SceneEval) -> list[int]:
-    """The run's seeds: each is a network seed and, through :func:`fit_seed`, a reconstruction seed."""
-    return list(range(ev.cfg.first_seed, ev.cfg.first_seed + ev.cfg.seeds))
-
-
 def densified_scenes(ev: SceneEval, seeds: list[int]) -> list[tuple[str, int, Scene]]:
     """(key, seed, scene) for every reconstruction: per seed of ``seeds``, N alone, each densify-baseline's
     views and the oracle; N + each network seed's views (with that seed)."""
@@ -80,7 +75,7 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
     (which keeps what was done if a fit fails: the seeds fitted so far, unsummarised). Every row is per seed,
     fitted with that seed's reconstruction seed; a reconstructor that takes no seed fits the rows without
     the network's views once (a single set, as without seeds)."""
-    seeds, each = run_seeds(ev), paired(fit)
+    seeds, each = ev.cfg.seed_list, paired(fit)
     runs = densified_scenes(ev, seeds if each else seeds[:1])
     fitted = fit_each(fit, [sc for _, _, sc in runs], [fit_seed(ev.cfg, s) for _, s, _ in runs])
     for (key, seed, sc), renderer in tqdm(
@@ -145,7 +140,7 @@ def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], e
     choice = choose_weight(ev.inputs, ev.planned, ev.validation, ev.cfg.synthetic_weights, first)
     choice.chosen_on_seed = ev.cfg.first_seed
     sets = SeededSets()
-    seeds = run_seeds(ev)[: len(ev.net_planned)]
+    seeds = ev.cfg.seed_list[: len(ev.net_planned)]
     scenes = [weighted_scene(ev.inputs, ev.planned, v, c, choice.weight) for v, c in zip(ev.net_planned, ev.net_conf)]
     for seed, sc, r in zip(seeds, scenes, fit_each(fit, scenes, [fit_seed(ev.cfg, s) for s in seeds])):
         label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"

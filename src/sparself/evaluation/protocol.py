@@ -252,10 +252,7 @@ def network_synthesis(ev: SceneEval, network: Callable[[Scene, int], SynthFn] | 
             ev.result.notes.append(str(e))
             return
     held, planned = SeededSets(), {sec: SeededSets() for sec in PLANNED_SECTIONS}
-    first = ev.cfg.first_seed
-    for seed in tqdm(
-        range(first, first + ev.cfg.seeds), desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False
-    ):
+    for seed in tqdm(ev.cfg.seed_list, desc=f"{ev.name}: network seeds", disable=not ev.cfg.progress, leave=False):
         synth = network(ev.inputs, seed)
         ev.net_synths.append(synth)
         imgs, conf = images_and_confidence(synth(ev.inputs, ev.targets))

@@ -458,7 +458,8 @@ def _record(
 ) -> SelfCheck:
     """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos."""
     without = float(np.concatenate([s.without for s in scores]).mean())
-    other = None if seed_change(scores) is None else float(np.concatenate([s.other for s in scores]).mean())
+    seconds = [s.other for s in scores if s.other is not None]
+    other = float(np.concatenate(seconds).mean()) if seconds and len(seconds) == len(scores) else None
     best = float(np.concatenate([d.chosen for d in decided]).mean())
     unchecked = int(np.isnan(gains).sum())
     return SelfCheck(
