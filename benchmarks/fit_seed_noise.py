@@ -33,7 +33,8 @@ def main() -> None:
     ap.add_argument("--add", default="22,86,100,124", help="frame positions of the real photos added to N")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--steps-per-view", type=int, default=12, help="the evaluation's rule (its --splat-steps-per-view)")
-    ap.add_argument("--fixed-steps", type=int, default=300, help="the self-check's rule (its --check-steps)")
+    ap.add_argument("--fixed-steps", type=int, default=300, help="the self-check's rule (its --check-steps); 0: skip")
+    ap.add_argument("--view-order", default="epochs", choices=["epochs", "uniform"], help="the fits' view order")
     ap.add_argument("--margin", type=int, default=18, help="the evaluation's --extrapolation-margin")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -47,16 +48,16 @@ def main() -> None:
 
     def scored(idx: list[int], seed: int, rule: dict) -> tuple[np.ndarray, float]:
         t = time.perf_counter()
-        r = splat.fit(ev.full.subset(sorted(idx)), seed=seed, progress=False, **rule)
+        r = splat.fit(ev.full.subset(sorted(idx)), seed=seed, progress=False, view_order=args.view_order, **rule)
         got = np.array([psnr(a, b) for a, b in zip(renders(r, ev.full, ev.targets), truth)])
         return got, time.perf_counter() - t
 
-    rules = {
-        f"{args.steps_per_view} steps per view": dict(steps=0, min_steps_per_view=args.steps_per_view),
-        f"{args.fixed_steps} steps": dict(steps=args.fixed_steps, min_steps_per_view=0),
-    }
+    rules = {f"{args.steps_per_view} steps per view": dict(steps=0, min_steps_per_view=args.steps_per_view)}
+    if args.fixed_steps:
+        rules[f"{args.fixed_steps} steps"] = dict(steps=args.fixed_steps, min_steps_per_view=0)
     print(
-        f"{args.capture.name}, N = {args.inputs}, + real photos at {extra}; PSNR (dB) on {len(truth)} held-out frames"
+        f"{args.capture.name}, N = {args.inputs}, + real photos at {extra}; PSNR (dB) on {len(truth)} held-out frames; "
+        f"view order {args.view_order}"
     )
     print("\n| fit | seed | N alone | N + real | change | per frame | seconds |\n|---|---|---|---|---|---|---|")
     for name, rule in rules.items():

@@ -148,6 +148,17 @@ def test_too_few_points_leave_the_scene_as_it_was(caplog):
     assert f"(< {MIN_POINTS}): not used, the scene is written with its own {MIN_POINTS - 1}" in caplog.text
 
 
+def test_too_few_points_still_bound_a_scene_without_bounds(monkeypatch):
+    scene = camera_line([0.1 * i for i in range(5)], SIZE, FOCAL, plane_image(), bounds=None)
+    few = np.c_[np.zeros((20, 2)), np.full(20, DEPTH)]  # 20 points, every one at depth DEPTH
+    monkeypatch.setattr(tr, "triangulate", lambda sc, config=None: tr.Triangulated(points=few, colors=0 * few))
+    out = ensure_points(scene)
+    assert out.points is None and out.bounds == pytest.approx((0.9 * DEPTH, 1.5 * 0.9 * DEPTH))  # far >= 1.5 near
+    assert scene.bounds is None  # the input is not modified
+    bounded = camera_line([0.1 * i for i in range(5)], SIZE, FOCAL, plane_image(), bounds=(1.0, 2.0))
+    assert ensure_points(bounded) is bounded  # known bounds win
+
+
 def test_few_own_points_are_replaced_by_triangulated_ones():
     scene = camera_line([0.1 * i for i in range(5)], SIZE, FOCAL, plane_image())
     scene.points, scene.point_colors = np.zeros((3, 3)), np.zeros((3, 3), np.uint8)

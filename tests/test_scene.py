@@ -131,6 +131,18 @@ def test_depth_bounds_from_points():
     assert 0.8 * z.min() < near <= z.min() and z.max() <= far < 1.2 * z.max()
 
 
+def test_points_depth_range_needs_ten_depths_in_front():
+    from sparself.capture.scene import points_depth_range
+
+    s = _scene()
+    ahead = np.c_[np.zeros((10, 2)), np.linspace(1.0, 3.0, 10)]  # in front of every camera (at z = -4)
+    near, far = points_depth_range(ahead, s.poses)
+    lo, hi = np.percentile([(p.R @ x + p.tvec)[2] for p in s.poses for x in ahead], [1, 99])
+    assert (near, far) == pytest.approx((0.9 * lo, 1.1 * hi))
+    assert points_depth_range(ahead[:9], s.poses) is None
+    assert points_depth_range(ahead - [0, 0, 10.0], s.poses) is None  # every point behind every camera
+
+
 def test_scene_images_resized(tmp_path):
     s = _scene(2)
     for i, f in enumerate(s.frames):

@@ -256,3 +256,17 @@ def test_evaluation_sets_the_cpu_3dgs_steps_per_view():
     short = reconstructor("3dgs", EvalConfig(splat_steps_per_view=4, progress=False))(sc)
     assert len(short.history) == 4 * 3  # a short run: 4 steps for each of the 3 views
     assert len(reconstructor("splat", EvalConfig(splat_steps_per_view=2, progress=False))(sc).history) == 6
+
+
+def test_epochs_show_every_view_once_before_any_twice():
+    from sparself.recon.common import view_order
+
+    got = list(view_order(5, 23, np.random.default_rng(0)))
+    assert len(got) == 23
+    for e in range(4):
+        assert sorted(got[5 * e : 5 * e + 5]) == [0, 1, 2, 3, 4]
+    assert len(set(got[20:])) == 3  # the last, partial epoch repeats none
+    assert got[:5] != got[5:10]  # a fresh order each epoch (this seed)
+    # "uniform" is the independent draw: the same as asking the generator step by step
+    rng = np.random.default_rng(1)
+    assert list(view_order(5, 50, np.random.default_rng(1), "uniform")) == [int(rng.integers(5)) for _ in range(50)]

@@ -90,12 +90,14 @@ def _capture(folder):
     return replace(sc, points=FAR_AWAY + np.random.default_rng(0).normal(size=(300, 3)), source=folder)
 
 
-def _run(tmp_path, scene, points: str):
+def _run(tmp_path, scene, points: str, bounds: list | None = None):
     seen = []  # (points, synthetic frames) of every reconstructor fit
+    bounds = [] if bounds is None else bounds  # and its scene's depth bounds
 
     class Recorder:  # a reconstructor that notes what it was fitted on; only the points matter here
         def __init__(self, sc):
             seen.append((sc.points, sum(f.synthetic for f in sc.frames)))
+            bounds.append(sc.bounds)
 
         def render(self, pose, camera):
             return np.full((camera.height, camera.width, 3), 0.5, np.float32)
@@ -160,16 +162,18 @@ def test_evaluation_can_keep_the_capture_points_and_drops_too_few(tmp_path, monk
     s, seen, res = _run(tmp_path, scene, "capture")
     assert res.settings.points == "capture" and s.input_points == InputPoints("capture", 300)
     assert all(np.array_equal(pts, scene.points) for pts, _ in seen)
+    # too few points to start from, on the plane (depth DEPTH - 1 .. DEPTH + 1 from every camera on the line)
+    few = np.c_[np.zeros((MIN_POINTS - 1, 2)), DEPTH + np.linspace(-1.0, 1.0, MIN_POINTS - 1)]
     monkeypatch.setattr(
-        protocol,
-        "triangulate",
-        lambda sc, config=None: replace(
-            Triangulated(), points=np.zeros((MIN_POINTS - 1, 3)), colors=np.zeros((MIN_POINTS - 1, 3))
-        ),
+        protocol, "triangulate", lambda sc, config=None: replace(Triangulated(), points=few, colors=0 * few)
     )
-    s, seen, _ = _run(tmp_path, scene, "inputs")
+    bounds: list = []
+    s, seen, _ = _run(tmp_path, replace(scene, bounds=None), "inputs", bounds)
     assert all(pts is None for pts, _ in seen)
-    assert any("none used" in n for n in s.notes)
+    assert any("none used" in n and "bounds the scene" in n for n in s.notes)
+    # ... but they bound every fit's depth: 1st / 99th percentiles of their depths from the 5 inputs, widened
+    lo, hi = np.percentile(np.tile(few[:, 2], 5), [1, 99])
+    assert bounds and all(b == pytest.approx((0.9 * lo, 1.1 * hi)) for b in bounds)
 
 
 def test_points_option_is_validated():

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sparself.capture.scene import MIN_POINTS, Camera, Observations, Scene
+from sparself.capture.scene import MIN_POINTS, Camera, Observations, Scene, points_depth_range
 
 log = logging.getLogger(__name__)
 
@@ -257,7 +257,8 @@ def with_points(scene: Scene, tri: Triangulated) -> Scene:
 def ensure_points(scene: Scene, photos: Scene | None = None, config: TriangulateConfig | None = None) -> Scene:
     """``scene`` unchanged if it has MIN_POINTS sparse points or more, else with points triangulated from
     the real photos of ``photos`` (default ``scene``; its synthetic frames are never used) when that gives
-    MIN_POINTS or more; otherwise ``scene`` unchanged (logged)."""
+    MIN_POINTS or more; otherwise ``scene`` unchanged (logged) except that a scene with neither bounds nor
+    points to bound its depth takes the triangulated points' depth range as its bounds."""
     if scene.points is not None and len(scene.points) >= MIN_POINTS:
         return scene
     tri = triangulate(scene if photos is None else photos, config)
@@ -270,6 +271,13 @@ def ensure_points(scene: Scene, photos: Scene | None = None, config: Triangulate
             MIN_POINTS,
             f"with its own {own}" if own else "without points",
         )
+        seen = points_depth_range(tri.points, scene.poses)
+        if (
+            seen
+            and scene.bounds is None
+            and (scene.points is None or not points_depth_range(scene.points, scene.poses))
+        ):
+            return replace(scene, bounds=seen)  # still better than a guess from the camera layout
         return scene
     log.info(
         "triangulated %d points from %d photos at their known poses (%.1f s)", len(tri.points), tri.views, tri.seconds

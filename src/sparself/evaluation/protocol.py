@@ -57,7 +57,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from sparself.capture.plot import plot_cameras
-from sparself.capture.scene import MIN_POINTS, Frame, Scene, preloaded
+from sparself.capture.scene import MIN_POINTS, Frame, Scene, points_depth_range, preloaded
 from sparself.capture.triangulate import triangulate, with_points
 from sparself.core.errors import InputError, SparselfError
 from sparself.core.geometry import rotation_angle_deg
@@ -153,20 +153,25 @@ def input_points(full: Scene, cameras: dict, inputs: list[int], cfg: EvalConfig,
 
     "inputs": triangulated from the photos of frames ``inputs`` alone (at their original ``cameras``, up to
     800 px), never a held-out one; fewer than MIN_POINTS are dropped (the reconstructors then fall back as on a
-    capture without points; noted). "capture": the capture's own points. Called before anything is fitted:
-    ``ev.inputs`` inherits these points, and every row of the scene (N, N + sparself, weighted, densify
-    baselines, oracle) fits on ``ev.inputs`` plus frames, so all rows share the same points."""
+    capture without points; noted), their depth range kept as the scene's bounds where it has none.
+    "capture": the capture's own points. Called before anything is fitted: ``ev.inputs`` inherits these
+    points, and every row of the scene (N, N + sparself, weighted, densify baselines, oracle) fits on
+    ``ev.inputs`` plus frames, so all rows share the same points."""
     if cfg.points == "capture":
         res.input_points = InputPoints("capture", 0 if full.points is None else len(full.points))
         return full
     tri = triangulate(replace(full.subset(inputs), cameras=cameras))
     res.input_points = InputPoints("inputs", len(tri.points), tri.views, tri.pairs, tri.matches, tri.seconds)
     if len(tri.points) < MIN_POINTS:
+        # too few to start from, enough to bound the depth (a guess from the camera layout is far off)
+        seen = points_depth_range(tri.points, [full.frames[i].pose for i in inputs])
+        bounds = full.bounds or seen
         res.notes.append(
             f"{len(tri.points)} points triangulated from the inputs (< {MIN_POINTS}): none used, "
             "the reconstructors start without sparse points"
+            + (f"; their depth range {seen[0]:.3g}..{seen[1]:.3g} bounds the scene" if seen and not full.bounds else "")
         )
-        return replace(full, points=None, point_colors=None, observations={})  # the capture's
+        return replace(full, points=None, point_colors=None, observations={}, bounds=bounds)  # the capture's
     return with_points(full, tri)
 
 

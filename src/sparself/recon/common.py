@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+from collections.abc import Iterator
+from typing import Literal
 
 import numpy as np
 import torch
@@ -54,6 +56,25 @@ def frustum_points(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray
         pc = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
         pts.append((pc - f.pose.tvec) @ f.pose.R)  # R^T (x - t)
     return np.concatenate(pts)
+
+
+ViewOrder = Literal["epochs", "uniform"]
+
+
+def view_order(n: int, steps: int, rng: np.random.Generator, order: ViewOrder = "epochs") -> Iterator[int]:
+    """The training view of each of ``steps`` steps over ``n`` views. "epochs": every view once per epoch,
+    in a fresh random order each epoch (the reference 3DGS's rule), so no view is seen more than once more
+    than another; "uniform": each step's view drawn independently (over a short fit some views are seen
+    three times as often as others)."""
+    if order == "uniform":
+        for _ in range(steps):
+            yield int(rng.integers(n))
+        return
+    epoch: list[int] = []
+    for _ in range(steps):
+        if not epoch:
+            epoch = [int(i) for i in rng.permutation(n)]
+        yield epoch.pop()
 
 
 def photometric_loss(render, gt, ssim_lambda: float, weight=None):

@@ -15,7 +15,7 @@ import numpy as np
 from sparself.capture.scene import MIN_POINTS, Camera, Scene
 from sparself.core.errors import SparselfError
 from sparself.core.geometry import Pose
-from sparself.recon.common import frustum_points, photometric_loss
+from sparself.recon.common import ViewOrder, frustum_points, photometric_loss
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,7 @@ class GsplatConfig:
     lr_sh0: float = 2.5e-3
     lr_shN: float = 2.5e-3 / 20
     grow: bool = True  # gsplat's DefaultStrategy (clone/split/prune the Gaussians) when available
+    view_order: ViewOrder = "epochs"  # each step's training view (sparself.recon.common.view_order)
     seed: int = 0
     max_side: int | None = None
     progress: bool = True
@@ -125,7 +126,7 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     Raises SparselfError (before any work) when gsplat or CUDA is missing.
     """
     gsplat, torch = _require_gsplat()
-    from sparself.recon.common import prepare_fit
+    from sparself.recon.common import prepare_fit, view_order
 
     scene, cfg = prepare_fit(scene, GsplatConfig, config, overrides, "gsplat")
     from tqdm.auto import tqdm
@@ -159,8 +160,8 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
     weights = [None if w is None else torch.tensor(w, device=dev) for w in map(scene.pixel_weight, range(len(scene)))]
     background = torch.zeros(3, device=dev)
     mean_decay = 0.01 ** (1.0 / max(cfg.steps, 1))
-    for step in tqdm(range(cfg.steps), desc="gsplat fit", disable=not cfg.progress, leave=False):
-        i = int(rng.integers(len(scene)))
+    order = view_order(len(scene), cfg.steps, rng, cfg.view_order)
+    for step, i in enumerate(tqdm(order, total=cfg.steps, desc="gsplat fit", disable=not cfg.progress, leave=False)):
         sh_deg = min(step // cfg.sh_increase_every, cfg.sh_degree)
         render, _, info = _rasterize(
             gsplat, torch, params, [scene.frames[i].pose], [scene.camera(i)], sh_deg, background, dev

@@ -32,6 +32,7 @@ from tqdm.auto import tqdm
 
 from sparself.capture.scene import MIN_POINTS, Camera, Scene
 from sparself.core.geometry import Pose, quat_to_rotmat
+from sparself.recon.common import ViewOrder
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +55,8 @@ class SplatConfig:
     grow_from / grow_until / grow_every: the Gaussians' clone/split schedule (fractions of ``steps`` for the
     first two); grad_threshold: mean screen-space gradient (NDC units, as the reference) that marks a
     Gaussian for cloning (small) or splitting (large: max scale > ``dense_scale`` x scene extent);
-    prune_opacity: Gaussians below it are removed at each refinement; sh_degree: 0 or 1, the degree-1
+    prune_opacity: Gaussians below it are removed at each refinement; view_order: how each step's training
+    view is drawn (:func:`~sparself.recon.common.view_order`); sh_degree: 0 or 1, the degree-1
     band switched on at ``sh_from`` x steps; lr_*: Adam learning rates (means: times the scene extent,
     decaying to 1 % by the last step); background: RGB behind every Gaussian.
     """
@@ -79,6 +81,7 @@ class SplatConfig:
     lr_sh0: float = 2.5e-3
     lr_sh1: float = 2.5e-3 / 20
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    view_order: ViewOrder = "epochs"
     max_side: int | None = None
     seed: int = 0
     # one thread: its tensors are small (a few 10^5 pairs), so a second thread's barriers cost more than it
@@ -421,7 +424,7 @@ def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRe
 
 
 def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
-    from sparself.recon.common import photometric_loss
+    from sparself.recon.common import photometric_loss, view_order
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -436,8 +439,8 @@ def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
     acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
     d0, d1 = int(cfg.grow_from * cfg.steps), int(cfg.grow_until * cfg.steps)
     history: list[float] = []
-    for step in tqdm(range(cfg.steps), desc="3dgs fit", disable=not cfg.progress, leave=False):
-        i = int(rng.integers(len(scene)))
+    order = view_order(len(scene), cfg.steps, rng, cfg.view_order)
+    for step, i in enumerate(tqdm(order, total=cfg.steps, desc="3dgs fit", disable=not cfg.progress, leave=False)):
         cam = scene.camera(i)
         deg = cfg.sh_degree if step >= cfg.sh_from * cfg.steps else 0
         img, p = render_gaussians(g, scene.frames[i].pose, cam, bg, deg)
