@@ -270,3 +270,18 @@ def test_epochs_show_every_view_once_before_any_twice():
     # "uniform" is the independent draw: the same as asking the generator step by step
     rng = np.random.default_rng(1)
     assert list(view_order(5, 50, np.random.default_rng(1), "uniform")) == [int(rng.integers(5)) for _ in range(50)]
+
+
+def test_rasterizer_refuses_images_beyond_its_exact_pixel_range():
+    from sparself.recon.splat import Projected, rasterize
+
+    one = Projected(
+        *(torch.zeros(1, k) for k in (2, 3)),
+        torch.ones(1),
+        torch.ones(1, 3),
+        torch.ones(1),
+        torch.ones(1, 2),
+        torch.zeros(1, dtype=torch.long),
+    )
+    with pytest.raises(MemoryError, match="2\\^24 pixels"):
+        rasterize(one, 4096, 4096, torch.zeros(3))

@@ -212,51 +212,80 @@ def rasterize_reference(
     return C + T[..., None] * background, 1 - T
 
 
-def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26) -> tuple[torch.Tensor, torch.Tensor]:
-    """Every (Gaussian, pixel) with alpha >= 1/255, sorted by pixel and, within a pixel, front to back.
+@dataclass
+class _Pairs:
+    """Every (Gaussian, pixel) with alpha >= 1/255, sorted by pixel and, within a pixel, front to back:
+    gauss (P,) rows of the Projected; pix (P,) = row * width + column; px, py (P,) float pixel
+    centres (column + 0.5, row + 0.5)."""
 
-    -> (gauss (P,), pixel (P,) = row * width + column). No gradient: only which pairs exist."""
+    gauss: torch.Tensor
+    pix: torch.Tensor
+    px: torch.Tensor
+    py: torch.Tensor
+
+
+def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26) -> _Pairs:
+    """The pairs worth compositing (no gradient: only which pairs exist). Found with int32 indices and a
+    float division for a pixel's column / row in its box (exact below 2^24 pixels): with int64 division and
+    gathers this was half of a 64 px forward pass."""
+    if width * height >= 1 << 24:
+        raise MemoryError(f"3dgs: a {width}x{height} image is beyond the rasterizer's 2^24 pixels")
     with torch.no_grad():
         m, r = p.means2d, p.radii
         # pixel centres (j + 0.5) within the box around the mean
-        x0 = torch.ceil(m[:, 0] - r[:, 0] - 0.5).clamp(0, width - 1).long()
-        x1 = torch.floor(m[:, 0] + r[:, 0] - 0.5).clamp(0, width - 1).long()
-        y0 = torch.ceil(m[:, 1] - r[:, 1] - 0.5).clamp(0, height - 1).long()
-        y1 = torch.floor(m[:, 1] + r[:, 1] - 0.5).clamp(0, height - 1).long()
+        x0 = torch.ceil(m[:, 0] - r[:, 0] - 0.5).clamp(0, width - 1)
+        x1 = torch.floor(m[:, 0] + r[:, 0] - 0.5).clamp(0, width - 1)
+        y0 = torch.ceil(m[:, 1] - r[:, 1] - 0.5).clamp(0, height - 1)
+        y1 = torch.floor(m[:, 1] + r[:, 1] - 0.5).clamp(0, height - 1)
         nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
-        counts = nx * ny
-        if int(counts.sum()) > max_pairs:
-            raise MemoryError(f"3dgs: {int(counts.sum())} Gaussian-pixel pairs exceed {max_pairs}")
-        gauss = torch.repeat_interleave(torch.arange(len(m)), counts)
-        local = torch.arange(len(gauss)) - torch.repeat_interleave(torch.cumsum(counts, 0) - counts, counts)
-        px = x0[gauss] + local % nx[gauss]
-        py = y0[gauss] + torch.div(local, nx[gauss], rounding_mode="floor")
-        a = _alpha(m[gauss], p.conics[gauss], p.opacities[gauss], px.to(m.dtype) + 0.5, py.to(m.dtype) + 0.5)
-        keep = a > 0
-        gauss, pix = gauss[keep], (py * width + px)[keep]
-        # Gaussians are in depth order: a stable sort keeps it (of 32-bit keys: a quarter faster, the same order)
-        order = torch.sort(pix.int() if width * height < 2**31 else pix, stable=True).indices
-        return gauss[order], pix[order]
+        counts = (nx * ny).int()
+        total = int(counts.sum())
+        if total > max_pairs:
+            raise MemoryError(f"3dgs: {total} Gaussian-pixel pairs exceed {max_pairs}")
+        gauss = torch.repeat_interleave(torch.arange(len(m), dtype=torch.int32), counts, output_size=total)
+        start = torch.cumsum(counts, 0, dtype=torch.int32) - counts
+        local = (torch.arange(total, dtype=torch.int32) - torch.repeat_interleave(start, counts, output_size=total)).to(
+            m.dtype
+        )
+        nxg = nx.index_select(0, gauss)
+        row = torch.floor((local + 0.5) / nxg)  # the +0.5 keeps the quotient away from whole numbers
+        px = x0.index_select(0, gauss) + (local - row * nxg) + 0.5
+        py = y0.index_select(0, gauss) + row + 0.5
+        a = _alpha(
+            m.index_select(0, gauss), p.conics.index_select(0, gauss), p.opacities.index_select(0, gauss), px, py
+        )
+        keep = torch.nonzero(a > 0).squeeze(1)
+        px, py = px.index_select(0, keep), py.index_select(0, keep)
+        pix = ((py - 0.5) * width + (px - 0.5)).int()
+        # Gaussians are in depth order: a stable sort by pixel keeps it
+        sort = torch.sort(pix, stable=True).indices
+        at = keep.index_select(0, sort)
+        # int64 out: the backward of an index_select by int32 indices runs at half the speed
+        gauss, pix = gauss.index_select(0, at).long(), pix.index_select(0, sort).long()
+        return _Pairs(gauss, pix, px.index_select(0, sort), py.index_select(0, sort))
 
 
 def rasterize(p: Projected, width: int, height: int, background: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Vectorised compositing over the (Gaussian, pixel) pairs that matter; equal to
     :func:`rasterize_reference`. -> (image (H, W, 3), alpha (H, W))."""
     dt = p.means2d.dtype
-    gauss, pix = _pixel_pairs(p, width, height)
+    pairs = _pixel_pairs(p, width, height)
+    gauss, pix = pairs.gauss, pairs.pix
     n_pix = width * height
-    px = (pix % width).to(dt) + 0.5
-    py = torch.div(pix, width, rounding_mode="floor").to(dt) + 0.5
     # index_select, not [gauss]: its backward (index_add) is deterministic on CPU, accumulate-indexing is not
     alpha = _alpha(
-        p.means2d.index_select(0, gauss), p.conics.index_select(0, gauss), p.opacities.index_select(0, gauss), px, py
+        p.means2d.index_select(0, gauss),
+        p.conics.index_select(0, gauss),
+        p.opacities.index_select(0, gauss),
+        pairs.px.to(dt),
+        pairs.py.to(dt),
     )
     log1m = torch.log1p(-alpha).double()  # transmittance in log space: a segmented cumsum per pixel
     incl = torch.cumsum(log1m, 0)
     first = torch.ones_like(pix, dtype=torch.bool)
     first[1:] = pix[1:] != pix[:-1]
     seg = torch.cumsum(first.long(), 0) - 1
-    base = (incl - log1m)[first][seg]  # the running sum before each pixel's first pair
+    base = (incl - log1m)[first].index_select(0, seg)  # the running sum before each pixel's first pair
     incl = incl - base
     use = (incl > math.log(T_MIN)).to(dt)  # a pixel stops before its transmittance falls to 1e-4
     alpha = alpha * use
