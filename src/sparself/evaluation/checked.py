@@ -55,7 +55,11 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
     if recon is None or not ev.cfg.checked or not ev.net_synths:
         return None
     return SelfCheckConfig(
-        recon=recon, plan_mode=ev.cfg.check_plan, check_steps=ev.cfg.check_steps, check_seed=fit_seed(ev.cfg, seed)
+        recon=recon,
+        plan_mode=ev.cfg.check_plan,
+        check_steps=ev.cfg.check_steps,
+        check_seed=fit_seed(ev.cfg, seed),
+        gain_gap=ev.cfg.check_gain_gap,
     )
 
 

@@ -79,6 +79,10 @@ class EvalConfig:
     check_plan: Literal["weak", "paper"] = option(
         "weak", "where the checked row's views go: where R is weak, or the paper's plan (the planned poses)"
     )
+    check_gain_gap: Literal["other", "own"] = option(
+        "other",
+        "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
+    )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(

@@ -14,6 +14,8 @@ the held-back one.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from sparself.capture.scene import Frame, Scene
@@ -62,13 +64,17 @@ def stand_ins(inputs: Scene, frames: list[Frame]) -> list[Frame]:
     return out
 
 
-def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None) -> np.ndarray:
+Gap = Literal["other", "own"]
+
+
+def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None, gap: Gap = "other") -> np.ndarray:
     """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
     the indices of the inputs on either side of it (``inputs`` in path order; ``held``: the held-back
-    positions, default :func:`validation_inputs`).
+    positions, default :func:`validation_inputs`); with ``gap`` "own", the views inside one instead.
 
     A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
-    hole the final fit never has, so it does not carry over (and it would blur the others' gains there).
+    hole the final fit never has ("other": it does not carry over). But a view acts mostly in its own gap,
+    and from outside it a view's gain is near zero ("own": measured there, at the price of that optimism).
     Views past the ends are checkable only by a fold holding an end back, and only they are."""
     idx = [f.index for f in inputs.frames]
     held = validation_inputs(len(inputs)) if held is None else held
@@ -76,15 +82,16 @@ def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None
     if {0, len(idx) - 1} & set(held):
         return past
     gaps = [sorted((idx[p - 1], idx[p + 1])) for p in held]
-    return ~past & np.array([not any(a < f.index < b for a, b in gaps) for f in planned], bool)
+    inside = np.array([any(a < f.index < b for a, b in gaps) for f in planned], bool)
+    return ~past & (inside if gap == "own" else ~inside)
 
 
-def measuring_fold(inputs: Scene, planned: list[Frame]) -> np.ndarray:
+def measuring_fold(inputs: Scene, planned: list[Frame], gap: Gap = "other") -> np.ndarray:
     """(T,) int: the :func:`check_folds` fold that measures each planned view, the first where it is
     :func:`checkable` (-1: none)."""
     out = np.full(len(planned), -1)
     for k, held in enumerate(check_folds(len(inputs))):
-        out[(out < 0) & checkable(inputs, planned, held)] = k
+        out[(out < 0) & checkable(inputs, planned, held, gap)] = k
     return out
 
 

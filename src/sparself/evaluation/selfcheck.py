@@ -46,7 +46,7 @@ from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
-from sparself.evaluation.folds import check_folds, measuring_fold, stand_ins, view_gains
+from sparself.evaluation.folds import Gap, check_folds, measuring_fold, stand_ins, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -111,6 +111,12 @@ class SelfCheckConfig:
         True,
         "merge each view with the render of the fit without it, pixel by pixel, by a small network trained on "
         "the held-back input photos (used only when it beats both the views and the render there)",
+    )
+    gain_gap: Gap = option(
+        "other",
+        "where a view's gain is measured: at the held-back photos outside its own gap (other: no fold widens "
+        "that gap) or inside it (own: the fold holds a neighbour of the view back, so the view fills a gap "
+        "twice as wide as in the final fit)",
     )
     seed_noise: bool = option(
         False,
@@ -217,13 +223,13 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     return preloaded(check_cameras(scene, cfg))
 
 
-def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany) -> list[Frame]:
+def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap = "other") -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
     their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses` that are
     measured by one of the self-check's folds (:func:`measuring_fold`) when there are any."""
     cands = candidate_poses(inputs, replace(plan, order="capture"))
-    ok = measuring_fold(inputs, [c.frame for c in cands]) >= 0
+    ok = measuring_fold(inputs, [c.frame for c in cands], gap) >= 0
     if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
         cands = [c for c, k in zip(cands, ok) if k]
     frames = [c.frame for c in cands]
@@ -401,7 +407,7 @@ def self_check(
     Returns the kept views with their exported confidence and the decision, logged in one line."""
     fits = fits or check_fits(cfg)
     small = at_check_size(inputs, cfg)
-    by = measuring_fold(small, planned)
+    by = measuring_fold(small, planned, cfg.gain_gap)
     held = [h for k, h in enumerate(check_folds(len(small))) if (by == k).any()]
     if not held:
         return _nothing_checkable(small, planned, final, fits, cfg, plan)
@@ -535,7 +541,7 @@ def checked_views(
             second = other_seed(cfg)
             other = None if second is None else check_fits(second, pool)
             return checked_views(inputs, paper, plan, synth, cfg, sources, check_fits(cfg, pool), other)
-    targets = weakest_plan(at_check_size(inputs, cfg), plan, fits) if cfg.plan_mode == "weak" else paper
+    targets = weakest_plan(at_check_size(inputs, cfg), plan, fits, cfg.gain_gap) if cfg.plan_mode == "weak" else paper
     final = synth(inputs if sources is None else sources, targets)
     return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits, other), final
 
