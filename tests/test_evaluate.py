@@ -352,3 +352,14 @@ def test_every_row_of_a_seed_is_fitted_with_that_seeds_reconstruction_seed(tmp_p
     diffs = [p.raw_mean("psnr") - q.raw_mean("psnr") for p, q in zip(net.per_seed, base.per_seed)]
     change, spread = paired_change(net, base)
     assert change == pytest.approx(np.mean(diffs)) and spread == pytest.approx(np.std(diffs))
+
+
+def test_the_checked_row_runs_densifys_check_with_the_evaluations_choices():
+    from types import SimpleNamespace
+
+    from sparself.evaluation.checked import check_config
+
+    cfg = EvalConfig(check_plan="paper", check_gain_gap="own", check_steps=123, recon_seed=4)
+    got = check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "3dgs", 2)
+    assert (got.recon, got.plan_mode, got.gain_gap, got.check_steps, got.check_seed) == ("3dgs", "paper", "own", 123, 6)
+    assert check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "nearest", 0) is None  # no check for it

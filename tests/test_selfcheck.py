@@ -219,6 +219,17 @@ def test_two_folds_of_held_back_inputs_measure_every_gap_between_them():
     assert measuring_fold(_line(5), frames[:3] + frames[-2:]).tolist() == [0, -1, -1, -1, -1]
 
 
+def test_measured_in_its_own_gap_a_view_is_judged_by_the_fold_that_widens_it():
+    scene = _line(12)  # folds [2, 7] and [4, 9]: widened gaps 1..3, 6..8 and 3..5, 8..10; the ends [0, 11]
+    xs = (0.5, 1.5, 2.5, 3.5, 4.5, 6.5, 8.5, 9.5, 10.5, 11.2, -0.4)
+    frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
+    # inside a widened gap only (gaps 0..1 and 10..11 no fold widens); past the ends: the ends fold, as before
+    assert measuring_fold(scene, frames, "own").tolist() == [-1, 0, 0, 1, 1, 0, 1, 1, -1, 2, 2]
+    interior = frames[:9]
+    own, other = checkable(scene, interior, [2, 7], "own"), checkable(scene, interior, [2, 7])
+    assert (own == ~other).all() and own.tolist() == [False, True, True, False, False, True, False, False, False]
+
+
 def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
     from sparself.evaluation import selfcheck
 
