@@ -20,7 +20,8 @@ from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, pla
 from sparself.synthesis.synthesize import Synthesized
 
 PLAN = PlanConfig(n_mid=4, n_extra=2)
-MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=96)
+# the geometry these tests spell out is that of views judged outside their own gaps
+MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=96, gain_gap="other")
 
 
 def _line(n: int = 12):

@@ -80,7 +80,7 @@ class EvalConfig:
         "weak", "where the checked row's views go: where R is weak, or the paper's plan (the planned poses)"
     )
     check_gain_gap: Literal["other", "own"] = option(
-        "other",
+        "own",
         "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
     )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
