@@ -1,10 +1,11 @@
 """Which held-back input photo may judge which synthesized view.
 
-The self-check holds input photos back and scores fits on them. A view between the two neighbours of a
-held-back photo fills a gap the check itself widened to twice its width: the gain measured there is a hole
-the final fit, which has that photo, never has. So the check runs in folds (:func:`check_folds`), and each
-view is judged by the first fold that holds back neither of its neighbouring photos (:func:`measuring_fold`),
-at that fold's held-back photos nearest to it (:func:`view_gains`).
+The self-check holds input photos back and scores fits on them, in folds (:func:`check_folds`). Each view is
+judged by the first fold that measures it (:func:`measuring_fold`), at that fold's held-back photos nearest to
+it (:func:`view_gains`). Which fold that is depends on where a view's gain is taken (:data:`Gap`): "own", by a
+fold that holds back one of its neighbouring photos, so that the view is judged inside its own gap, where it
+acts (a gap the check widened to twice its width: optimistic); "other", by a fold that holds back neither, so
+that it is judged outside its gap (where, measured, a view does little).
 
 A view past an end input is judged by a fold of its own that holds both end photos back: no interior
 photo is beyond it, so no interior fold can measure it. That fold fits and scores a *stand-in* for it

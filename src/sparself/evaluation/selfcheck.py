@@ -9,10 +9,12 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
   the fifth), the fold's views are synthesized again without those photos, and the reconstructor is fitted
   on the rest without and with them at each synthetic-frame weight. A view's gain is the PSNR change at its
   fold's held-back inputs nearest to it; views that gain are kept (refitted alone to confirm), and where
-  nothing beats the fit without views, none is written. A view is measured only by a fold that holds back
-  neither of its neighbouring photos: a view between the two neighbours of a held-back photo would fill a
-  hole twice as wide as any the final fit, which has that photo, ever has. The second fold widens the gaps
-  the first leaves alone, so together they measure every gap. Views past the end inputs are judged by a
+  nothing beats the fit without views, none is written. By default (``gain_gap`` "own") a view is measured
+  inside its own gap, by the fold that holds one of its neighbouring photos back: there it acts, though in a
+  hole twice as wide as any the final fit, which has that photo, ever has. With "other" it is measured only
+  by a fold that holds back neither neighbour, outside its gap (the second fold widens the gaps the first
+  leaves alone, so together they measure every gap); measured on llff_bird, a view does little there and
+  that rule kept almost none of the views that help. Views past the end inputs are judged by a
   third fold that holds both ends back, through stand-ins: the same extrapolations made one input further
   in. A view no fold can measure is neither planned nor kept. The kept views must gain more than their
   spread over the held-back photos and, with ``seed_noise``, more than a second seed alone moves the fits
