@@ -272,16 +272,16 @@ def test_epochs_show_every_view_once_before_any_twice():
     assert list(view_order(5, 50, np.random.default_rng(1), "uniform")) == [int(rng.integers(5)) for _ in range(50)]
 
 
-def test_rasterizer_refuses_images_beyond_its_exact_pixel_range():
-    from sparself.recon.splat import Projected, rasterize
+def test_large_images_find_the_same_pairs_in_float64(monkeypatch):
+    from sparself.recon import splat
 
-    one = Projected(
-        *(torch.zeros(1, k) for k in (2, 3)),
-        torch.ones(1),
-        torch.ones(1, 3),
-        torch.ones(1),
-        torch.ones(1, 2),
-        torch.zeros(1, dtype=torch.long),
-    )
-    with pytest.raises(MemoryError, match="2\\^24 pixels"):
-        rasterize(one, 4096, 4096, torch.zeros(3))
+    cam = Camera.pinhole(48, 36, 40.0)
+    g = _random_gaussians(150, 0)
+    g = type(g)(**{k: getattr(g, k).float() for k in ("means", "quats", "log_scales", "opacity_logits", "sh")})
+    _, p = render_gaussians(g, Pose.from_center(np.array([1.0, 0, 0, 0]), np.zeros(3)), cam, torch.zeros(3), 1)
+    small = splat._pixel_pairs(p, cam.width, cam.height)
+    monkeypatch.setattr(splat, "EXACT_FLOAT32", 0)  # as if the image had 2^24 pixels or more
+    large = splat._pixel_pairs(p, cam.width, cam.height)
+    assert large.px.dtype == torch.float64 and small.px.dtype == torch.float32 and len(small.gauss) > 1000
+    assert torch.equal(small.gauss, large.gauss) and torch.equal(small.pix, large.pix)
+    assert torch.equal(small.px.double(), large.px) and torch.equal(small.py.double(), large.py)

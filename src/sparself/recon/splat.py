@@ -41,6 +41,7 @@ SH_C1 = 0.4886025119029199
 ALPHA_MIN, ALPHA_MAX, T_MIN = 1.0 / 255.0, 0.999, 1e-4
 EPS2D = 0.3  # px^2 low-pass added to every 2D covariance
 NEAR_PLANE = 0.01
+EXACT_FLOAT32 = 1 << 24  # whole numbers up to here are exact in float32
 BACKEND = "cpu: sparself.recon.splat (plain torch)"
 
 
@@ -226,12 +227,13 @@ class _Pairs:
 
 def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26) -> _Pairs:
     """The pairs worth compositing (no gradient: only which pairs exist). Found with int32 indices and a
-    float division for a pixel's column / row in its box (exact below 2^24 pixels): with int64 division and
-    gathers this was half of a 64 px forward pass."""
-    if width * height >= 1 << 24:
-        raise MemoryError(f"3dgs: a {width}x{height} image is beyond the rasterizer's 2^24 pixels")
+    float division for a pixel's column / row in its box: with int64 division and gathers this was half of a
+    64 px forward pass. The division is in float64 from EXACT_FLOAT32 pixels on, where float32 is no longer
+    exact."""
     with torch.no_grad():
         m, r = p.means2d, p.radii
+        if width * height >= EXACT_FLOAT32:
+            m, r = m.double(), r.double()
         # pixel centres (j + 0.5) within the box around the mean
         x0 = torch.ceil(m[:, 0] - r[:, 0] - 0.5).clamp(0, width - 1)
         x1 = torch.floor(m[:, 0] + r[:, 0] - 0.5).clamp(0, width - 1)
