@@ -47,9 +47,8 @@ _RANKED = re.compile(r"^\d{4,}_")
 @dataclass(frozen=True)
 class ViewCheck:
     """One planned view in the self-check: its planned name and index, its validation gain (dB of PSNR on the
-    held-back input photos nearest to it, fit with the synthesized views minus fit without; None: it lay
-    between the neighbours of a held-back photo, where it cannot be measured, and was not kept), and whether
-    it was kept."""
+    held-back input photos nearest to it, fit with the synthesized views minus fit without; None: no fold of
+    the check could measure it, and it was not kept), and whether it was kept."""
 
     name: str
     index: float
