@@ -221,14 +221,26 @@ def test_two_folds_of_held_back_inputs_measure_every_gap_between_them():
 
 
 def test_measured_in_its_own_gap_a_view_is_judged_by_the_fold_that_widens_it():
-    scene = _line(12)  # folds [2, 7] and [4, 9]: widened gaps 1..3, 6..8 and 3..5, 8..10; the ends [0, 11]
+    scene = _line(12)  # own folds [1, 5, 9] and [3, 7, 10]: every gap has one input held back; the ends [0, 11]
+    assert check_folds(12, "own") == [[1, 5, 9], [3, 7, 10], [0, 11]]
     xs = (0.5, 1.5, 2.5, 3.5, 4.5, 6.5, 8.5, 9.5, 10.5, 11.2, -0.4)
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
-    # inside a widened gap only (gaps 0..1 and 10..11 no fold widens); past the ends: the ends fold, as before
-    assert measuring_fold(scene, frames, "own").tolist() == [-1, 0, 0, 1, 1, 0, 1, 1, -1, 2, 2]
+    assert measuring_fold(scene, frames, "own").tolist() == [0, 0, 1, 1, 0, 1, 0, 0, 1, 2, 2]
     interior = frames[:9]
     own, other = checkable(scene, interior, [2, 7], "own"), checkable(scene, interior, [2, 7])
     assert (own == ~other).all() and own.tolist() == [False, True, True, False, False, True, False, False, False]
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 6, 9, 10, 12, 25, 26])
+def test_own_gap_folds_hold_back_one_input_of_every_gap_and_never_two_neighbours(n):
+    folds = check_folds(n, "own")
+    interior = [f for f in folds if f != [0, n - 1]]
+    assert len(interior) <= 2 and all(0 < p < n - 1 for f in interior for p in f)
+    assert all(abs(a - b) > 1 for f in interior for a in f for b in f if a != b)
+    assert all({g, g + 1} & set(sum(interior, [])) for g in range(n - 1))  # every gap g (inputs g, g + 1)
+    scene = _line(n)
+    mids = [replace(scene.frames[0], name=f"m{g}", index=g + 0.5) for g in range(n - 1)]
+    assert (measuring_fold(scene, mids, "own") >= 0).all()
 
 
 def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):

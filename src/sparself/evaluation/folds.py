@@ -5,7 +5,8 @@ judged by the first fold that measures it (:func:`measuring_fold`), at that fold
 it (:func:`view_gains`). Which fold that is depends on where a view's gain is taken (:data:`Gap`): "own", by a
 fold that holds back one of its neighbouring photos, so that the view is judged inside its own gap, where it
 acts (a gap the check widened to twice its width: optimistic); "other", by a fold that holds back neither, so
-that it is judged outside its gap (where, measured, a view does little).
+that it is judged outside its gap (where, measured, a view does little). Each mode has its own folds, which
+together reach every gap between two inputs.
 
 A view past an end input is judged by a fold of its own that holds both end photos back: no interior
 photo is beyond it, so no interior fold can measure it. That fold fits and scores a *stand-in* for it
@@ -24,23 +25,40 @@ from sparself.evaluation.config import VALIDATION_EVERY
 from sparself.evaluation.weighting import validation_inputs
 from sparself.synthesis.plan import planned_frame
 
+Gap = Literal["other", "own"]
+
 ENDS_MIN = 6  # inputs a capture needs for the ends fold: two extrapolate each stand-in after both ends go
 
 
-def check_folds(n: int) -> list[list[int]]:
-    """The self-check's folds: positions among n inputs (path order) held back together. The first is
-    :func:`validation_inputs`; the second, every VALIDATION_EVERY-th interior input from the fifth, widens
-    the gaps the first leaves alone, so that between them every gap can be measured (:func:`checkable`);
-    the last (from ENDS_MIN inputs) holds back both ends, for the views past them.
+def check_folds(n: int, gap: Gap = "other") -> list[list[int]]:
+    """The self-check's folds: positions among n inputs (path order) held back together, the last (from
+    ENDS_MIN inputs) holding back both ends, for the views past them.
+
+    With ``gap`` "other" the first is :func:`validation_inputs` and the second, every VALIDATION_EVERY-th
+    interior input from the fifth, widens the gaps the first leaves alone, so that between them every gap
+    can be measured from outside (:func:`checkable`). With "own" a gap is measured by a fold holding one of
+    its two inputs back: the odd positions, alternating between two folds (1, 5, 9, ... and 3, 7, 11, ...),
+    hold back one input of every gap and never two neighbours; with n even the last gap's odd input is an
+    end, so its other input joins the fold that does not hold its neighbour.
 
     >>> check_folds(25)
     [[2, 7, 12, 17, 22], [4, 9, 14, 19], [0, 24]]
     >>> check_folds(9)
     [[2, 7], [4], [0, 8]]
+    >>> check_folds(9, "own")
+    [[1, 5], [3, 7], [0, 8]]
+    >>> check_folds(10, "own")
+    [[1, 5, 8], [3, 7], [0, 9]]
     """
+    ends = [[0, n - 1]] * (n >= ENDS_MIN)
+    if gap == "own":
+        folds = [list(range(1, n - 1, 4)), list(range(3, n - 1, 4))]
+        if n % 2 == 0 and n >= 4:
+            folds[int((n - 3) % 4 == 1)].append(n - 2)
+        return [f for f in folds if f] + ends
     first = validation_inputs(n)
     second = [p for p in range(4, n - 1, VALIDATION_EVERY) if p not in first]
-    return [first] + [second] * bool(second) + [[0, n - 1]] * (n >= ENDS_MIN)
+    return [first] + [second] * bool(second) + ends
 
 
 def beyond(inputs: Scene, frames: list[Frame]) -> np.ndarray:
@@ -63,9 +81,6 @@ def stand_ins(inputs: Scene, frames: list[Frame]) -> list[Frame]:
         t = (f.index - idx[b]) / (idx[end] - idx[b])
         out.append(planned_frame(inputs, a, b, idx[a], idx[b], t))
     return out
-
-
-Gap = Literal["other", "own"]
 
 
 def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None, gap: Gap = "other") -> np.ndarray:
@@ -91,7 +106,7 @@ def measuring_fold(inputs: Scene, planned: list[Frame], gap: Gap = "other") -> n
     """(T,) int: the :func:`check_folds` fold that measures each planned view, the first where it is
     :func:`checkable` (-1: none)."""
     out = np.full(len(planned), -1)
-    for k, held in enumerate(check_folds(len(inputs))):
+    for k, held in enumerate(check_folds(len(inputs), gap)):
         out[(out < 0) & checkable(inputs, planned, held, gap)] = k
     return out
 

@@ -4,19 +4,19 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
 * **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
   other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
   disagree most, the reconstruction is weakest, and that is where views are planned.
-* **Keep only what pays** (:func:`self_check`): in each of two folds of inputs held back together
-  (:mod:`sparself.evaluation.folds`: every ``VALIDATION_EVERY``-th interior input, from the third and from
-  the fifth), the fold's views are synthesized again without those photos, and the reconstructor is fitted
-  on the rest without and with them at each synthetic-frame weight. A view's gain is the PSNR change at its
-  fold's held-back inputs nearest to it; views that gain are kept (refitted alone to confirm), and where
-  nothing beats the fit without views, none is written. By default (``gain_gap`` "own") a view is measured
-  inside its own gap, by the fold that holds one of its neighbouring photos back: there it acts, though in a
-  hole twice as wide as any the final fit, which has that photo, ever has. With "other" it is measured only
-  by a fold that holds back neither neighbour, outside its gap (the second fold widens the gaps the first
-  leaves alone, so together they measure every gap); measured on llff_bird, a view does little there and
-  that rule kept almost none of the views that help. Views past the end inputs are judged by a
-  third fold that holds both ends back, through stand-ins: the same extrapolations made one input further
-  in. A view no fold can measure is neither planned nor kept. The kept views must gain more than their
+* **Keep only what pays** (:func:`self_check`): in each fold of inputs held back together
+  (:mod:`sparself.evaluation.folds`), the fold's views are synthesized again without those photos, and the
+  reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
+  the PSNR change at its fold's held-back inputs nearest to it; views that gain are kept (refitted alone to
+  confirm), and where nothing beats the fit without views, none is written. By default (``gain_gap`` "own") a
+  view is measured inside its own gap, by the fold that holds one of its two neighbouring photos back (two
+  folds holding back the odd positions in turn reach every gap): there it acts, though in a hole twice as
+  wide as any the final fit, which has that photo, ever has. With "other" it is measured only by a fold that
+  holds back neither neighbour, outside its gap (folds of every ``VALIDATION_EVERY``-th interior input, from
+  the third and from the fifth, so that together they measure every gap); measured on llff_bird, a view does
+  little there and that rule kept almost none of the views that help. Views past the end inputs are judged
+  by a third fold that holds both ends back, through stand-ins: the same extrapolations made one input
+  further in. A view no fold can measure is neither planned nor kept. The kept views must gain more than their
   spread over the held-back photos and, with ``seed_noise``, more than a second seed alone moves the fits
   without views there (:func:`seed_change`; on a sparse capture that can be a dB or more).
   Independent fits run side by side (:mod:`sparself.recon.pool`).
@@ -410,7 +410,7 @@ def self_check(
     fits = fits or check_fits(cfg)
     small = at_check_size(inputs, cfg)
     by = measuring_fold(small, planned, cfg.gain_gap)
-    held = [h for k, h in enumerate(check_folds(len(small))) if (by == k).any()]
+    held = [h for k, h in enumerate(check_folds(len(small), cfg.gain_gap)) if (by == k).any()]
     if not held:
         return _nothing_checkable(small, planned, final, fits, cfg, plan)
     views = [[int(i) for i in np.flatnonzero(by == k)] for k in sorted(set(by[by >= 0]))]
