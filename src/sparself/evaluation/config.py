@@ -13,6 +13,7 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 
 
 PlannedSection = Literal["midpoints", "extrapolations"]
+Gap = Literal["other", "own"]  # where the self-check measures a view's gain (evaluation.folds)
 # results of the planned views that have a real photo
 PLANNED_SECTIONS: tuple[PlannedSection, ...] = ("midpoints", "extrapolations")
 
@@ -79,7 +80,7 @@ class EvalConfig:
     check_plan: Literal["weak", "paper"] = option(
         "weak", "where the checked row's views go: where R is weak, or the paper's plan (the planned poses)"
     )
-    check_gain_gap: Literal["other", "own"] = option(
+    check_gain_gap: Gap = option(
         "own",
         "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
     )

@@ -2,11 +2,12 @@
 
 The self-check holds input photos back and scores fits on them, in folds (:func:`check_folds`). Each view is
 judged by the first fold that measures it (:func:`measuring_fold`), at that fold's held-back photos nearest to
-it (:func:`view_gains`). Which fold that is depends on where a view's gain is taken (:data:`Gap`): "own", by a
-fold that holds back one of its neighbouring photos, so that the view is judged inside its own gap, where it
-acts (a gap the check widened to twice its width: optimistic); "other", by a fold that holds back neither, so
-that it is judged outside its gap (where, measured, a view does little). Each mode has its own folds, which
-together reach every gap between two inputs.
+it (:func:`view_gains`). Which fold that is depends on where a view's gain is taken
+(:data:`~sparself.evaluation.config.Gap`): "own", by a fold that holds back one of its neighbouring photos,
+so that the view is judged inside its own gap, where it acts (a gap the check widened to twice its width:
+optimistic); "other", by a fold that holds back neither, so that it is judged outside its gap (where,
+measured, a view does little). Each mode has its own folds, which together reach every gap between two
+inputs.
 
 A view past an end input is judged by a fold of its own that holds both end photos back: no interior
 photo is beyond it, so no interior fold can measure it. That fold fits and scores a *stand-in* for it
@@ -16,16 +17,12 @@ the held-back one.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
 from sparself.capture.scene import Frame, Scene
-from sparself.evaluation.config import VALIDATION_EVERY
+from sparself.evaluation.config import VALIDATION_EVERY, Gap
 from sparself.evaluation.weighting import validation_inputs
 from sparself.synthesis.plan import planned_frame
-
-Gap = Literal["other", "own"]
 
 ENDS_MIN = 6  # inputs a capture needs for the ends fold: two extrapolate each stand-in after both ends go
 

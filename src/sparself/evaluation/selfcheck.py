@@ -47,8 +47,9 @@ from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
+from sparself.evaluation.config import Gap
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
-from sparself.evaluation.folds import Gap, check_folds, measuring_fold, stand_ins, view_gains
+from sparself.evaluation.folds import check_folds, measuring_fold, stand_ins, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
