@@ -127,7 +127,7 @@ def eval_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="minutes instead of hours on a CPU: 64 px, 1 seed, 3 network epochs, short NeRF, at most 6 "
+        help="minutes instead of hours on a CPU: 64 px, 1 seed, 30 network epochs, short NeRF, at most 6 "
         "scored frames, one baseline densified",
     )
     add_options(p, EvalConfig, unset=True, notes={k: f"; --quick: {v}" for k, v in quick_settings().items()})
