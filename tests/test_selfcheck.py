@@ -14,7 +14,14 @@ from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
 from sparself.capture.io.dense import SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.geometry import Pose
-from sparself.evaluation.folds import check_folds, checkable, measuring_fold, stand_ins, view_gains
+from sparself.evaluation.folds import (
+    check_folds,
+    checkable,
+    measuring_fold,
+    measuring_photos,
+    stand_ins,
+    view_gains,
+)
 from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
 from sparself.synthesis.synthesize import Synthesized
@@ -170,6 +177,18 @@ def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate((1.5, 4.5, 6.0, 9.5))]
     # 4.5 is equally far from 2 and 7: the mean of both
     np.testing.assert_allclose(view_gains(scene, frames, np.array([1.0, -3.0])), [1.0, -1.0, -3.0, -3.0])
+
+
+def test_a_fold_is_scored_only_at_the_held_back_photos_nearest_its_views():
+    """Views past the first input, judged by the fold holding both ends back, are scored at the first
+    photo only: the last one measures none of them (its change there is not theirs to answer for)."""
+    scene = _line(12)
+    start = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate((-0.8, -0.4))]
+    assert measuring_photos(scene, start, [0, 11]) == [0]
+    # a view equally far from two held-back photos is measured by both; one beside 7 by 7 alone
+    both = [replace(scene.frames[0], name="mid", index=4.5), replace(scene.frames[0], name="near", index=8.0)]
+    assert measuring_photos(scene, both, [2, 7]) == [2, 7]
+    assert measuring_photos(scene, both[1:], [2, 7]) == [7]
 
 
 class _Bump:

@@ -108,6 +108,17 @@ def measuring_fold(inputs: Scene, planned: list[Frame], gap: Gap = "other") -> n
     return out
 
 
+def measuring_photos(inputs: Scene, planned: list[Frame], held: list[int]) -> list[int]:
+    """The positions of ``held`` that measure at least one of ``planned`` in :func:`view_gains`: the held-back
+    inputs nearest to some view by index (ties: all of them), in the order of ``held``."""
+    at = np.array([inputs.frames[i].index for i in held])
+    near: set[int] = set()
+    for f in planned:
+        d = np.abs(at - f.index)
+        near.update(int(k) for k in np.flatnonzero(np.isclose(d, d.min())))
+    return [h for k, h in enumerate(held) if k in near]
+
+
 def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray, held: list[int] | None = None) -> np.ndarray:
     """Each planned view's gain: the mean of ``gain`` (one per held-back position of ``held``, default
     :func:`validation_inputs`) over the held-back inputs nearest to it by index (ties: all of them)."""

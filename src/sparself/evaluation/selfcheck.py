@@ -7,8 +7,11 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
 * **Keep only what pays** (:func:`self_check`): in each fold of inputs held back together
   (:mod:`sparself.evaluation.folds`), the fold's views are synthesized again without those photos, and the
   reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
-  the PSNR change at its fold's held-back inputs nearest to it; views that gain are kept (refitted alone to
-  confirm), and where nothing beats the fit without views, none is written. By default (``gain_gap`` "own") a
+  the PSNR change at its fold's held-back inputs nearest to it, and a fold is scored only at the held-back
+  inputs nearest one of its views (:func:`~sparself.evaluation.folds.measuring_photos`: the ends fold's views
+  past the first input are not answerable for the last photo, whose both neighbours' views are missing from
+  that fit); views that gain are kept (refitted alone to confirm), and where nothing beats the fit without
+  views, none is written. By default (``gain_gap`` "own") a
   view is measured inside its own gap, by the fold that holds one of its two neighbouring photos back (two
   folds holding back the odd positions in turn reach every gap): there it acts, though in a hole twice as
   wide as any the final fit, which has that photo, ever has. With "other" it is measured only by a fold that
@@ -49,7 +52,7 @@ from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
 from sparself.evaluation.config import Gap
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
-from sparself.evaluation.folds import check_folds, measuring_fold, stand_ins, view_gains
+from sparself.evaluation.folds import check_folds, measuring_fold, measuring_photos, stand_ins, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -277,6 +280,7 @@ class _Fold:
     held: list[int]
     base: Renderer
     views: list[int]
+    scored: list[int]  # the held-back positions nearest its views, where it is scored (:func:`measuring_photos`)
     frames: list[Frame]
     synthesized: ValidationViews
     reference: np.ndarray  # (V, h, w, 3)
@@ -297,7 +301,8 @@ def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], vi
         [f.name for f in train.frames],
     )
     pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:])
-    return _Fold(held, base, views, frames, made, renders(base, small, frames), pairs)
+    scored = measuring_photos(small, [planned[i] for i in views], held)
+    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), pairs)
 
 
 def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
@@ -343,9 +348,9 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     fitted = iter(fits(scenes))
     out = []
     for k, (f, v) in enumerate(zip(folds, lowered)):
-        by_weight = {float(w): held_back_psnr(small, next(fitted), f.held) for w in cfg.check_weights}
-        other = None if others is None else held_back_psnr(small, others[k], f.held)
-        out.append((_Scores(held_back_psnr(small, f.base, f.held), by_weight, other), v))
+        by_weight = {float(w): held_back_psnr(small, next(fitted), f.scored) for w in cfg.check_weights}
+        other = None if others is None else held_back_psnr(small, others[k], f.scored)
+        out.append((_Scores(held_back_psnr(small, f.base, f.scored), by_weight, other), v))
     return out
 
 
@@ -360,13 +365,13 @@ def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: f
     """Per fold, the views that gain at weight ``w``; where that is a proper subset it is refitted alone (all
     such refits at once) and kept when it beats every view together (:func:`_settle`)."""
     gains = [
-        view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.held)
+        view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.scored)
         for f, (s, _) in zip(folds, scored)
     ]
     keeps = [g > cfg.min_gain for g in gains]
     partial = [k for k, keep in enumerate(keeps) if 0 < keep.sum() < len(keep)]
     scenes = [_kept_scene(small, folds[k], scored[k][1], keeps[k], w) for k in partial]
-    alone = {k: held_back_psnr(small, r, folds[k].held) for k, r in zip(partial, fits(scenes))}
+    alone = {k: held_back_psnr(small, r, folds[k].scored) for k, r in zip(partial, fits(scenes))}
     return [_settle(keeps[k], gains[k], scored[k][0], w, alone.get(k), cfg) for k in range(len(folds))]
 
 
@@ -474,7 +479,7 @@ def _record(
     return SelfCheck(
         recon=cfg.recon,
         plan=plan,
-        validation=tuple(small.frames[i].name for f in folds for i in f.held),
+        validation=tuple(small.frames[i].name for f in folds for i in f.scored),
         psnr_without=without,
         psnr_by_weight=tuple(weights.items()),
         psnr_kept=best if keep.any() else None,
