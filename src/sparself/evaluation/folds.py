@@ -108,24 +108,23 @@ def measuring_fold(inputs: Scene, planned: list[Frame], gap: Gap = "other") -> n
     return out
 
 
+def nearest_held(inputs: Scene, held: list[int], f: Frame) -> np.ndarray:
+    """(len(held),) bool: the held-back positions nearest to ``f`` by index (ties: all of them)."""
+    d = np.abs(np.array([inputs.frames[i].index for i in held]) - f.index)
+    return np.isclose(d, d.min())
+
+
 def measuring_photos(inputs: Scene, planned: list[Frame], held: list[int]) -> list[int]:
     """The positions of ``held`` that measure at least one of ``planned`` in :func:`view_gains`: the held-back
-    inputs nearest to some view by index (ties: all of them), in the order of ``held``."""
-    at = np.array([inputs.frames[i].index for i in held])
-    near: set[int] = set()
+    inputs nearest to some view (:func:`nearest_held`), in the order of ``held``."""
+    near = np.zeros(len(held), bool)
     for f in planned:
-        d = np.abs(at - f.index)
-        near.update(int(k) for k in np.flatnonzero(np.isclose(d, d.min())))
-    return [h for k, h in enumerate(held) if k in near]
+        near |= nearest_held(inputs, held, f)
+    return [h for h, k in zip(held, near) if k]
 
 
 def view_gains(inputs: Scene, planned: list[Frame], gain: np.ndarray, held: list[int] | None = None) -> np.ndarray:
     """Each planned view's gain: the mean of ``gain`` (one per held-back position of ``held``, default
     :func:`validation_inputs`) over the held-back inputs nearest to it by index (ties: all of them)."""
     held = validation_inputs(len(inputs)) if held is None else held
-    at = np.array([inputs.frames[i].index for i in held])
-    out = []
-    for f in planned:
-        d = np.abs(at - f.index)
-        out.append(float(np.mean(gain[np.isclose(d, d.min())])))
-    return np.array(out)
+    return np.array([float(np.mean(gain[nearest_held(inputs, held, f)])) for f in planned])

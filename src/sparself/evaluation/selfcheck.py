@@ -8,9 +8,9 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
   (:mod:`sparself.evaluation.folds`), the fold's views are synthesized again without those photos, and the
   reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
   the PSNR change at its fold's held-back inputs nearest to it, and a fold is scored only at the held-back
-  inputs nearest one of its views (:func:`~sparself.evaluation.folds.measuring_photos`: the ends fold's views
-  past the first input are not answerable for the last photo, whose both neighbours' views are missing from
-  that fit); views that gain are kept (refitted alone to confirm), and where nothing beats the fit without
+  inputs nearest one of its views (:func:`~sparself.evaluation.folds.measuring_photos`: views past the first
+  input, judged by the fold holding both ends back, do not answer for the last photo, which none of them is
+  nearest to); views that gain are kept (refitted alone to confirm), and where nothing beats the fit without
   views, none is written. By default (``gain_gap`` "own") a
   view is measured inside its own gap, by the fold that holds one of its two neighbouring photos back (two
   folds holding back the odd positions in turn reach every gap): there it acts, though in a hole twice as
