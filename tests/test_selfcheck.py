@@ -324,25 +324,6 @@ def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_ar
     assert not unclear and decided is steady
 
 
-def test_views_that_gain_together_over_every_held_back_photo_are_all_kept():
-    from sparself.evaluation.selfcheck import SelfCheckConfig, _Scores, _together
-
-    cfg = SelfCheckConfig()  # keep_rule "together"
-    gains = [np.array([2.0, 0.5]), np.array([-0.5])]
-    # fold one gains +2.0 and +0.5 dB at its two photos, fold two loses 0.5 dB at its one: +0.67 dB pooled
-    scores = [
-        _Scores(np.array([15.0, 16.0]), {0.5: np.array([17.0, 16.5])}),
-        _Scores(np.array([17.0]), {0.5: np.array([16.5])}),
-    ]
-    decided = _together(gains, scores, 0.5, cfg)
-    assert decided is not None and all(d.keep.all() for d in decided)  # the losing fold's view too
-    assert [d.gains for d in decided] == gains and decided[1].chosen.tolist() == [16.5]
-    assert _together(gains, scores, 0.5, replace(cfg, min_gain=0.7)) is None  # +0.67 is not more than 0.7
-    assert _together(gains, scores, 0.5, replace(cfg, keep_rule="each")) is None
-    scores[1] = _Scores(np.array([17.0]), {0.5: np.array([14.0])})  # -3 dB there: -0.17 dB pooled
-    assert _together(gains, scores, 0.5, cfg) is None  # each view is judged on its own instead
-
-
 def test_kept_views_whose_gain_is_within_what_the_fits_seed_alone_changes_are_not_written():
     from sparself.evaluation.selfcheck import SelfCheckConfig, _confirmed, _Decision, _Scores, seed_change
 

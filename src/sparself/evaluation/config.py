@@ -14,7 +14,6 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 
 PlannedSection = Literal["midpoints", "extrapolations"]
 Gap = Literal["other", "own"]  # where the self-check measures a view's gain (evaluation.folds)
-KeepRule = Literal["together", "each"]  # how the self-check keeps views (evaluation.selfcheck)
 # results of the planned views that have a real photo
 PLANNED_SECTIONS: tuple[PlannedSection, ...] = ("midpoints", "extrapolations")
 
@@ -84,11 +83,6 @@ class EvalConfig:
     check_gain_gap: Gap = option(
         "own",
         "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
-    )
-    check_keep_rule: KeepRule = option(
-        "together",
-        "which views the checked row's self-check keeps: all when together they gain, else each that gains "
-        "(together), or each on its own gain (each) (densify --keep-rule)",
     )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")

@@ -50,7 +50,7 @@ from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
-from sparself.evaluation.config import Gap, KeepRule
+from sparself.evaluation.config import Gap
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
 from sparself.evaluation.folds import check_folds, measuring_fold, measuring_photos, stand_ins, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
@@ -124,12 +124,6 @@ class SelfCheckConfig:
         "so the view fills a gap twice as wide as in the final fit) or at the held-back photos outside it "
         "(other: no fold widens that gap; on llff_bird it kept almost no view that helps, measured)",
     )
-    keep_rule: KeepRule = option(
-        "together",
-        "which checked views are kept: every one when together they raise the fits' mean PSNR over all the "
-        "held-back photos, else each that gains near its own (together), or each on its own gain only (each: "
-        "one view is judged at one or two photos, and on llff_bird at 9 inputs that kept a third of a 2 dB gain)",
-    )
     seed_noise: bool = option(
         False,
         "fit each fold without views at a second seed too, and keep views only when their gain at the held-back "
@@ -167,8 +161,6 @@ class Checked:
 
 
 FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
-# how the kept views were chosen: together (pooled gain), each on its own gain, or none for want of a clear gain
-Outcome = Literal["together", "each", "unclear"]
 
 
 def check_settings(cfg: SelfCheckConfig) -> dict:
@@ -369,22 +361,13 @@ class _Decision:
     chosen: np.ndarray  # held-back PSNR of the kept views (without views when none is kept)
 
 
-def _together(gains: list[np.ndarray], scores: list[_Scores], w: float, cfg) -> list[_Decision] | None:
-    """Every fold keeping all its views, when ``cfg.keep_rule`` is "together" and the fits with them at weight
-    ``w`` beat those without by more than ``cfg.min_gain`` on the mean over every fold's scored photos (None
-    otherwise). Pooled, the gain is an average over many photos; a view's own is one or two photos' worth."""
-    if cfg.keep_rule != "together":
-        return None
-    pooled = float(np.concatenate([s.by_weight[w] - s.without for s in scores]).mean())
-    if pooled <= cfg.min_gain:
-        return None
-    log.info("self-check: every view together gains %+.2f dB over the held-back photos: keeping all", pooled)
-    return [_Decision(np.ones(len(g), bool), g, s.by_weight[w]) for g, s in zip(gains, scores)]
-
-
-def _decide(small: Scene, folds: list[_Fold], scored, gains: list[np.ndarray], w: float, fits: FitMany, cfg):
-    """Per fold, the views that gain (``gains``, each view's at weight ``w``); where that is a proper subset it
-    is refitted alone (all such refits at once) and kept when it beats every view together (:func:`_settle`)."""
+def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: float, fits: FitMany, cfg):
+    """Per fold, the views that gain at weight ``w``; where that is a proper subset it is refitted alone (all
+    such refits at once) and kept when it beats every view together (:func:`_settle`)."""
+    gains = [
+        view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.scored)
+        for f, (s, _) in zip(folds, scored)
+    ]
     keeps = [g > cfg.min_gain for g in gains]
     partial = [k for k, keep in enumerate(keeps) if 0 < keep.sum() < len(keep)]
     scenes = [_kept_scene(small, folds[k], scored[k][1], keeps[k], w) for k in partial]
@@ -445,20 +428,11 @@ def self_check(
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
-    per_view = [
-        view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.scored)
-        for f, s in zip(folds, scores)
-    ]
-    together = _together(per_view, scores, w, cfg)
-    if together is None:
-        decided, unclear = _confirmed(_decide(small, folds, scored, per_view, w, fits, cfg), scores, cfg)
-        how: Outcome = "unclear" if unclear else "each"
-    else:
-        decided, how = together, "together"
+    decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), scores, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
-    record = _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan, how)
+    record = _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan, unclear)
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
     return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
 
@@ -494,7 +468,7 @@ def seed_change(scores: list[_Scores]) -> float | None:
 
 
 def _record(
-    small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str, how: Outcome
+    small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str, unclear: bool
 ) -> SelfCheck:
     """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos."""
     without = float(np.concatenate([s.without for s in scores]).mean())
@@ -511,7 +485,7 @@ def _record(
         psnr_kept=best if keep.any() else None,
         weight=w if keep.any() else None,
         views=_view_checks(planned, gains, keep),
-        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, how, other),
+        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, unclear, other),
         fixer=None if fix is None else fix.record,
         psnr_other_seed=other,
     )
@@ -598,19 +572,17 @@ def _reason(
     best: float,
     without: float,
     unchecked: int,
-    how: Outcome,
+    unclear: bool,
     other: float | None = None,
 ) -> str:
     aside = f" ({unchecked} planned between the neighbours of a held-back photo could not be checked)" * (unchecked > 0)
     seed = "" if other is None else f", {other:.2f} dB at another seed"
     if kept == 0:
-        clearly = "clearly " * (how == "unclear")
         return (
-            f"no synthesized view {clearly}improves the {recon} fit on the held-back input photos "
+            f"no synthesized view {'clearly ' * unclear}improves the {recon} fit on the held-back input photos "
             f"({without:.2f} dB without views{seed}){aside}: the capture is written without synthesized views"
         )
-    together = " (every checked view: together they raise the mean over the held-back photos)" * (how == "together")
     return (
-        f"kept {kept} of {planned} synthesized views at weight {w:g}{together}: the {recon} fit renders the "
+        f"kept {kept} of {planned} synthesized views at weight {w:g}: the {recon} fit renders the "
         f"held-back input photos at {best:.2f} dB with them, {without:.2f} dB without{aside}"
     )
