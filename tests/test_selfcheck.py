@@ -91,7 +91,7 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     # the ends: by the ends fold)
     assert test and rec.validation == (inputs[2], inputs[7], inputs[4], inputs[0], inputs[-1])
     checked = _line().subset([i for i, f in enumerate(_line().frames) if f.name in inputs])
-    assert (measuring_fold(checked, planned) >= 0).all() and all(v.gain is not None for v in rec.views)
+    assert (measuring_fold(checked, planned, "other") >= 0).all() and all(v.gain is not None for v in rec.views)
     # the fixer was tried on those same photos; exact views cannot be beaten, so it was not used
     assert rec.fixer is not None and rec.fixer.held_back == rec.validation and not rec.fixer.used
     written = json.loads((tmp_path / "out" / "plan.json").read_text())["frames"]
@@ -209,7 +209,7 @@ def _halves_disagree_at(at: float, width: float):
 
 def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
     scene = _line(8)
-    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), _halves_disagree_at(0.42, 0.05))
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), _halves_disagree_at(0.42, 0.05), "other")
     assert [f.index for f in picked] == [3.75, 4.25, 7.2]  # nearest x = 0.42 in gaps 3-4 and 4-5; the end
     cands = candidate_poses(scene, PlanConfig(n_mid=2, n_extra=1))
     assert len(cands) == 7 * 3 + 2 * 2 and sum(c.beyond for c in cands) == 4
@@ -222,21 +222,33 @@ def test_views_between_the_neighbours_of_a_held_back_input_are_not_checkable():
     scene = _line(12)  # held back: positions 2 and 7, so the gaps 1..3 and 6..8 are twice as wide in the check
     xs = (-0.2, 0.5, 1.0, 1.5, 2.5, 3.0, 4.5, 6.5, 7.5, 8.0, 11.2)
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
-    assert checkable(scene, frames).tolist() == [False, True, True, False, False, True, True, False, False, True, False]
-    assert checkable(scene, frames, [0, 11]).tolist() == [True] + [False] * 9 + [
+    assert checkable(scene, frames, "other").tolist() == [
+        False,
+        True,
+        True,
+        False,
+        False,
+        True,
+        True,
+        False,
+        False,
+        True,
+        False,
+    ]
+    assert checkable(scene, frames, "other", [0, 11]).tolist() == [True] + [False] * 9 + [
         True
     ]  # the ends fold: past the ends only
 
 
 def test_two_folds_of_held_back_inputs_measure_every_gap_between_them():
-    assert check_folds(25) == [[2, 7, 12, 17, 22], [4, 9, 14, 19], [0, 24]]
-    assert check_folds(9) == [[2, 7], [4], [0, 8]]
-    assert check_folds(5) == [[2]]  # too few inputs for a second fold or for the ends fold
+    assert check_folds(25, "other") == [[2, 7, 12, 17, 22], [4, 9, 14, 19], [0, 24]]
+    assert check_folds(9, "other") == [[2, 7], [4], [0, 8]]
+    assert check_folds(5, "other") == [[2]]  # too few inputs for a second fold or for the ends fold
     scene = _line(12)  # folds [2, 7] and [4, 9]: widened gaps 1..3, 6..8 and 3..5, 8..10; the ends [0, 11]
     xs = (0.5, 1.5, 2.5, 3.5, 4.5, 6.5, 8.5, 9.5, 10.5, 11.2, -0.4)
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
-    assert measuring_fold(scene, frames).tolist() == [0, 1, 1, 0, 0, 1, 0, 0, 0, 2, 2]
-    assert measuring_fold(_line(5), frames[:3] + frames[-2:]).tolist() == [0, -1, -1, -1, -1]
+    assert measuring_fold(scene, frames, "other").tolist() == [0, 1, 1, 0, 0, 1, 0, 0, 0, 2, 2]
+    assert measuring_fold(_line(5), frames[:3] + frames[-2:], "other").tolist() == [0, -1, -1, -1, -1]
 
 
 def test_measured_in_its_own_gap_a_view_is_judged_by_the_fold_that_widens_it():
@@ -246,7 +258,7 @@ def test_measured_in_its_own_gap_a_view_is_judged_by_the_fold_that_widens_it():
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate(xs)]
     assert measuring_fold(scene, frames, "own").tolist() == [0, 0, 1, 1, 0, 1, 0, 0, 1, 2, 2]
     interior = frames[:9]
-    own, other = checkable(scene, interior, [2, 7], "own"), checkable(scene, interior, [2, 7])
+    own, other = checkable(scene, interior, "own", [2, 7]), checkable(scene, interior, "other", [2, 7])
     assert (own == ~other).all() and own.tolist() == [False, True, True, False, False, True, False, False, False]
 
 
@@ -274,7 +286,7 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
 
     planned = plan_poses(scene, PLAN)  # four midpoints and one view past each end
     checked = selfcheck.self_check(scene, planned, synth, _exact(scene, planned), MPI, "paper")
-    folds = [[scene.frames[i].name for i in held] for held in check_folds(12)]
+    folds = [[scene.frames[i].name for i in held] for held in check_folds(12, MPI.gain_gap)]
     assert len(calls) == len(folds) == 3
     assert all(sources.isdisjoint(fold) and set(fold) <= targets for (sources, targets), fold in zip(calls, folds))
     assert checked.record.validation == tuple(sum(folds, []))
@@ -298,11 +310,11 @@ def test_a_view_past_an_end_is_stood_in_for_by_the_same_extrapolation_one_input_
 def test_the_weak_plan_avoids_the_gaps_the_check_widens():
     scene = _line(12)
     fit = _halves_disagree_at(0.2, 0.15)  # at input 2
-    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), fit)
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), fit, "other")
     assert [f.index for f in picked] == [1.75, 2.25]  # beside held-back input 2: measured by the second fold
-    assert measuring_fold(scene, picked).tolist() == [1, 1]
+    assert measuring_fold(scene, picked, "other").tolist() == [1, 1]
     five = _line(5)  # one fold only, holding back input 2: the gaps beside it cannot be measured
-    assert [f.index for f in weakest_plan(five, PlanConfig(n_mid=2, n_extra=0), fit)] == [0.75, 3.25]
+    assert [f.index for f in weakest_plan(five, PlanConfig(n_mid=2, n_extra=0), fit, "other")] == [0.75, 3.25]
 
 
 def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_are_not_written():

@@ -27,7 +27,7 @@ from sparself.synthesis.plan import planned_frame
 ENDS_MIN = 6  # inputs a capture needs for the ends fold: two extrapolate each stand-in after both ends go
 
 
-def check_folds(n: int, gap: Gap = "other") -> list[list[int]]:
+def check_folds(n: int, gap: Gap) -> list[list[int]]:
     """The self-check's folds: positions among n inputs (path order) held back together, the last (from
     ENDS_MIN inputs) holding back both ends, for the views past them.
 
@@ -38,9 +38,9 @@ def check_folds(n: int, gap: Gap = "other") -> list[list[int]]:
     hold back one input of every gap and never two neighbours; with n even the last gap's odd input is an
     end, so its other input joins the fold that does not hold its neighbour.
 
-    >>> check_folds(25)
+    >>> check_folds(25, "other")
     [[2, 7, 12, 17, 22], [4, 9, 14, 19], [0, 24]]
-    >>> check_folds(9)
+    >>> check_folds(9, "other")
     [[2, 7], [4], [0, 8]]
     >>> check_folds(9, "own")
     [[1, 5], [3, 7], [0, 8]]
@@ -80,7 +80,7 @@ def stand_ins(inputs: Scene, frames: list[Frame]) -> list[Frame]:
     return out
 
 
-def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None, gap: Gap = "other") -> np.ndarray:
+def checkable(inputs: Scene, planned: list[Frame], gap: Gap, held: list[int] | None = None) -> np.ndarray:
     """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
     the indices of the inputs on either side of it (``inputs`` in path order; ``held``: the held-back
     positions, default :func:`validation_inputs`); with ``gap`` "own", the views inside one instead.
@@ -99,12 +99,12 @@ def checkable(inputs: Scene, planned: list[Frame], held: list[int] | None = None
     return ~past & (inside if gap == "own" else ~inside)
 
 
-def measuring_fold(inputs: Scene, planned: list[Frame], gap: Gap = "other") -> np.ndarray:
+def measuring_fold(inputs: Scene, planned: list[Frame], gap: Gap) -> np.ndarray:
     """(T,) int: the :func:`check_folds` fold that measures each planned view, the first where it is
     :func:`checkable` (-1: none)."""
     out = np.full(len(planned), -1)
     for k, held in enumerate(check_folds(len(inputs), gap)):
-        out[(out < 0) & checkable(inputs, planned, held, gap)] = k
+        out[(out < 0) & checkable(inputs, planned, gap, held)] = k
     return out
 
 

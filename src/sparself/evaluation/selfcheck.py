@@ -229,7 +229,7 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
     return preloaded(check_cameras(scene, cfg))
 
 
-def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap = "other") -> list[Frame]:
+def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap) -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
     their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses` that are
