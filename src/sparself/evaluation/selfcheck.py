@@ -1,5 +1,6 @@
 """The densify self-check: synthesized views are kept only where they make the chosen reconstruction better
-at held-back *input* photos, so a densified capture is never worse than the N photos alone (on that check).
+at held-back *input* photos, so a densified capture is never worse than the N photos alone there (at other
+poses it can be: the check measures with the error of its folds, whose gaps are twice the final fit's).
 
 * **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
   other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
