@@ -297,7 +297,9 @@ def test_the_fixers_views_are_scored_wherever_it_was_used_even_when_no_view_was_
     from sparself.evaluation.results import NETWORK_FIXED
     from sparself.model.fixer import Fixer
 
-    used = lambda pairs, steps, seed: FixerFit(Fixer(), FixerCheck(pairs.names, 20.0, 19.0, 21.0, True))  # noqa: E731
+    used = lambda pairs, steps, seed, groups=None: FixerFit(  # noqa: E731
+        Fixer(), FixerCheck(pairs.names, 20.0, 19.0, 21.0, True), (Fixer(),) * len(groups or pairs.names)
+    )
     monkeypatch.setattr(selfcheck, "validated_fixer", used)
     strict = checked_row.check_config
     monkeypatch.setattr(checked_row, "check_config", lambda ev, r, s: replace(strict(ev, r, s), min_gain=99.0))

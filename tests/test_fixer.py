@@ -6,12 +6,13 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import torch
 import torch.nn.functional as F
 
 from sparself.capture.io.dense import FixerCheck, SelfCheck, ViewCheck
 from sparself.core import metrics
-from sparself.evaluation.fixing import beats, fixed, fixer_pairs, to_tensor, validated_fixer
+from sparself.evaluation.fixing import FixerPairs, beats, fixed, fixer_pairs, to_tensor, validated_fixer
 from sparself.model.fixer import Fixer, best_gate, blend, fix_views, train_fixer
 
 
@@ -141,6 +142,27 @@ def test_the_fixer_is_tested_leave_one_out_on_held_back_inputs_and_used_when_it_
     # one pair cannot be tested leave-one-out: no fixer
     one = validated_fixer(pairs.subset([0]), steps=200, seed=0)
     assert one.fixer is None and not one.record.used and np.isnan(one.record.psnr_fixed)
+
+
+def test_each_group_is_scored_by_a_fixer_that_never_saw_its_photos():
+    from dataclasses import replace
+
+    view, render, conf, truth = _pairs(n=5)
+    pairs = FixerPairs(tuple(f"p{i}" for i in range(5)), view, render, conf, truth)
+    groups = [[0, 1], [2, 3], [4]]
+    fit = validated_fixer(pairs, steps=20, seed=0, groups=groups)
+    assert len(fit.held_out) == 3
+    # other photos in the first group: its fixer is the same, the others' are not
+    moved = validated_fixer(
+        replace(pairs, truth=torch.where(torch.arange(5)[:, None, None, None] < 2, 1 - truth, truth)), 20, 0, groups
+    )
+    same = [
+        all(torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters()))
+        for a, b in zip(fit.held_out, moved.held_out)
+    ]
+    assert same == [True, False, False]
+    with pytest.raises(ValueError, match="do not split"):
+        validated_fixer(pairs, steps=20, seed=0, groups=[[0, 1], [2, 3]])
 
 
 def test_fixed_views_are_numpy_images_at_the_views_size():

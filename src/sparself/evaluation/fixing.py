@@ -4,7 +4,9 @@ used only where its merge beats both the network's views and the reconstruction'
 Training pairs are honest by construction: at each held-back input photo, the render comes from a fit
 without it and the view is synthesized without it (the network's weights did train on every input, as for
 the weight choice of :mod:`sparself.evaluation.weighting`). Each held-back photo is scored by a fixer
-trained on the others; the fixer that is used is then trained on all of them.
+trained without it: by one trained on the other self-check folds' photos (the very fixers that then fix each
+fold's views), or leave-one-out when there is one fold; the fixer that is used on the written views is then
+trained on all of them.
 """
 
 from __future__ import annotations
@@ -29,10 +31,12 @@ MIN_GAIN = 0.05  # dB the merges must beat both the views and the renders by at 
 
 @dataclass
 class FixerFit:
-    """A capture's fixer (None: not used) and its test on the held-back inputs."""
+    """A capture's fixer (None: not used), its test on the held-back inputs, and the fixers that scored each
+    group of pairs in that test, each trained without its group (in the order of the groups)."""
 
     fixer: Fixer | None
     record: FixerCheck
+    held_out: tuple[Fixer, ...] = ()
 
 
 def to_tensor(images: np.ndarray) -> torch.Tensor:
@@ -111,18 +115,23 @@ def beats(fixed: np.ndarray, view: np.ndarray, render: np.ndarray) -> bool:
     return metrics.clear_gain(fixed - (view if view.mean() >= render.mean() else render), MIN_GAIN)
 
 
-def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
-    """Score each pair's photo with a fixer trained on the other pairs (leave-one-out); when those merges
-    beat both the views and the renders (:func:`beats`), the fixer trained on every pair. Needs two pairs."""
+def validated_fixer(pairs: FixerPairs, steps: int, seed: int, groups: list[list[int]] | None = None) -> FixerFit:
+    """Score each group of pairs (positions into ``pairs``; default: each pair alone, leave-one-out) with a
+    fixer trained on the other groups' pairs; when those merges beat both the views and the renders
+    (:func:`beats`), the fixer trained on every pair. Needs two groups."""
     v, r, c, t = pairs.view, pairs.render, pairs.confidence, pairs.truth
-    if len(pairs) < 2:
+    groups = [[j] for j in range(len(pairs))] if groups is None else [g for g in groups if g]
+    if sorted(j for g in groups for j in g) != list(range(len(pairs))):
+        raise ValueError(f"the groups {groups} do not split the {len(pairs)} pairs")
+    if len(groups) < 2:
         return FixerFit(None, FixerCheck(pairs.names, _mean_psnr(v, t), _mean_psnr(r, t), float("nan"), False))
-    loo = []
-    for j in range(len(pairs)):
-        fx = pairs.subset([k for k in range(len(pairs)) if k != j]).train(steps, seed)
+    held_out, merged = [], torch.zeros_like(t)
+    for g in groups:
+        fx = pairs.subset([k for k in range(len(pairs)) if k not in g]).train(steps, seed)
         with torch.no_grad():
-            loo.append(blend(fx, v[j : j + 1], r[j : j + 1], c[j : j + 1]))
-    each = _psnrs(v, t), _psnrs(r, t), _psnrs(torch.cat(loo), t)
+            merged[g] = blend(fx, v[g], r[g], c[g])
+        held_out.append(fx)
+    each = _psnrs(v, t), _psnrs(r, t), _psnrs(merged, t)
     p_view, p_render, p_fixed = (float(e.mean()) for e in each)
     used = beats(each[2], each[0], each[1])
     log.info(
@@ -134,4 +143,4 @@ def validated_fixer(pairs: FixerPairs, steps: int, seed: int) -> FixerFit:
         "used" if used else "not used: it does not beat both by more than its spread over the photos",
     )
     fixer = pairs.train(steps, seed) if used else None
-    return FixerFit(fixer, FixerCheck(pairs.names, p_view, p_render, p_fixed, used))
+    return FixerFit(fixer, FixerCheck(pairs.names, p_view, p_render, p_fixed, used), tuple(held_out))

@@ -307,18 +307,19 @@ def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], vi
 
 
 def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
-    """The fixer tested on every fold's pairs (:func:`validated_fixer`); where it is used, each fold's views
-    fixed by a fixer trained on the *other* folds' pairs (its own when there is no other fold), so that no
-    fold's check is scored on photos its fixer learnt from."""
+    """The fixer tested on every fold's pairs, each fold's by a fixer trained on the *other* folds' pairs
+    (:func:`validated_fixer`; leave-one-out when there is one fold); where it is used, each fold's views are
+    fixed by the fixer that scored it, so that no fold's check is scored on photos its fixer learnt from."""
     if not cfg.fixer:
         return folds, None
-    fix = validated_fixer(FixerPairs.cat([f.pairs for f in folds]), FIXER_STEPS, cfg.check_seed)
+    starts = np.cumsum([0] + [len(f.pairs) for f in folds])
+    groups = [list(range(a, b)) for a, b in zip(starts[:-1], starts[1:])] if len(folds) > 1 else None
+    fix = validated_fixer(FixerPairs.cat([f.pairs for f in folds]), FIXER_STEPS, cfg.check_seed, groups)
     if fix.fixer is None:
         return folds, fix
     out = []
     for k, f in enumerate(folds):
-        others = [g.pairs for j, g in enumerate(folds) if j != k]
-        fx = FixerPairs.cat(others).train(FIXER_STEPS, cfg.check_seed) if others else fix.fixer
+        fx = fix.held_out[k] if groups is not None else fix.fixer
         images = fixed(fx, f.synthesized.images, f.reference, f.synthesized.confidence)
         out.append(replace(f, synthesized=replace(f.synthesized, images=images)))
     return out, fix
