@@ -172,6 +172,28 @@ def test_agreeing_pixels_get_lower_confidence():
     assert np.array_equal(informative_confidence(ref, None, ref, cfg), np.full((2, 9, 9), 0.25, np.float32))
 
 
+def test_uniform_pixel_weights_fit_and_write_every_pixel_of_a_view_alike():
+    from sparself.evaluation import selfcheck
+
+    scene, cfg = _line(12), replace(MPI, pixel_weights="uniform")
+    planned = plan_poses(scene, PLAN)
+    fitted: list = []
+    check = selfcheck.check_fits(cfg)
+
+    def fits(scenes):
+        fitted.extend(f for sc in scenes for f in sc.frames if f.synthetic)
+        return check(scenes)
+
+    def synth(sc, targets):
+        return Synthesized(_exact(sc, targets), np.full((len(targets), 64, 96), 0.4, np.float32))
+
+    checked = selfcheck.self_check(scene, planned, synth, synth(scene, planned), cfg, "paper", fits)
+    # the network's confidence (0.4) reaches neither the check's fits nor the written masks: only the weight
+    assert fitted and all(f.confidence is None and f.weight in cfg.check_weights for f in fitted)
+    assert checked.frames and checked.confidence is not None
+    assert np.array_equal(checked.confidence, np.full(checked.confidence.shape, checked.record.weight, np.float32))
+
+
 def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():
     scene = _line(12)  # held back: positions 2 and 7
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate((1.5, 4.5, 6.0, 9.5))]

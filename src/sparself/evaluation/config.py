@@ -84,6 +84,9 @@ class EvalConfig:
         "own",
         "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
     )
+    check_pixel_weights: Literal["confidence", "uniform"] = option(
+        "confidence", "per-pixel weights of the checked row's views (densify --pixel-weights)"
+    )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(

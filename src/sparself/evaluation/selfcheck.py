@@ -108,6 +108,12 @@ class SelfCheckConfig:
         "without it; its confidence is lowered there (0: never)",
     )
     agree_weight: float = option(0.3, "the factor the confidence of such agreeing pixels is multiplied by")
+    pixel_weights: PixelWeights = option(
+        "confidence",
+        "per-pixel loss weights of the views in the check's fits and in the written masks: the network's "
+        "confidence, lowered where a view agrees with the render (confidence), or the synthetic-frame weight "
+        "on every pixel (uniform: what a trainer that ignores masks, such as gsplat's, fits)",
+    )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
         None,
@@ -161,6 +167,7 @@ class Checked:
     reference: Renderer | None = None  # the fit on all inputs at the check size whose renders it merged in
 
 
+PixelWeights = Literal["confidence", "uniform"]
 FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
 
 
@@ -342,7 +349,7 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     lowered = [
         replace(
             f.synthesized,
-            confidence=informative_confidence(f.synthesized.images, f.synthesized.confidence, f.reference, cfg),
+            confidence=_fitted_confidence(f.synthesized.images, f.synthesized.confidence, f.reference, cfg),
         )
         for f in folds
     ]
@@ -556,9 +563,18 @@ def checked_views(
     return targets, self_check(inputs, targets, synth, final, cfg, cfg.plan_mode, fits, other), final
 
 
+def _fitted_confidence(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, cfg) -> np.ndarray | None:
+    """The per-pixel weights (T, H, W) a fold's views are fitted with: :func:`informative_confidence`, or
+    None (every pixel alike) with ``cfg.pixel_weights`` uniform."""
+    return None if cfg.pixel_weights == "uniform" else informative_confidence(images, conf, reference, cfg)
+
+
 def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, weight: float, cfg) -> np.ndarray:
     """The written views' confidence: the network's, lowered where the view agrees with the render of the fit
-    without views (at that fit's size, then scaled up), times the synthetic-frame weight."""
+    without views (at that fit's size, then scaled up), times the synthetic-frame weight (that weight alone
+    with ``cfg.pixel_weights`` uniform)."""
+    if cfg.pixel_weights == "uniform":
+        return np.full(images.shape[:3], np.clip(weight, 0.0, 1.0), np.float32)
     h, w = reference.shape[1:3]
     factor = informative_confidence(resize_images(images, (w, h)), None, reference, cfg)
     factor = np.clip(resize_images(factor, (images.shape[2], images.shape[1])), 0.0, 1.0)
