@@ -358,6 +358,35 @@ def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_ar
     assert not unclear and decided is steady
 
 
+def test_kept_together_a_fold_keeps_all_its_views_or_none_and_refits_no_subset(monkeypatch):
+    from sparself.evaluation import selfcheck
+
+    # one fold, four views: two gain at their held-back photos, two lose; together they gain +0.5 dB
+    gains = np.array([1.0, -0.5, 0.8, -0.2])
+    monkeypatch.setattr(selfcheck, "view_gains", lambda small, frames, change, scored: gains)
+    monkeypatch.setattr(selfcheck, "held_back_psnr", lambda small, r, scored: np.array([r]))
+    monkeypatch.setattr(selfcheck, "_kept_scene", lambda small, fold, views, keep, w: float(keep.sum()))
+    fold = selfcheck._Fold([2], None, [0, 1, 2, 3], [2], [], None, None, [])  # type: ignore[arg-type]
+    scores = selfcheck._Scores(np.array([20.0]), {1.0: np.array([20.5])})
+    refits: list = []
+
+    def fits(scenes):
+        refits.extend(scenes)
+        return [21.0 for _ in scenes]  # the subset alone: +1.0 dB
+
+    def decide(**kw):
+        return selfcheck._decide(None, [None] * 4, [fold], [(scores, None)], 1.0, fits, SelfCheckConfig(**kw))[0]
+
+    each = decide()  # the gaining two, refitted alone, beat all four together
+    assert each.keep.tolist() == [True, False, True, False] and refits == [2.0] and each.chosen[0] == 21.0
+    refits.clear()
+    together = decide(keep="together")
+    assert together.keep.all() and refits == [] and together.chosen[0] == 20.5
+    assert np.array_equal(together.gains, gains)  # each view's own gain is still recorded
+    scores.by_weight[1.0] = np.array([19.8])  # together they lose: none is kept, whatever each gains alone
+    assert not decide(keep="together").keep.any()
+
+
 def test_kept_views_whose_gain_is_within_what_the_fits_seed_alone_changes_are_not_written():
     from sparself.evaluation.selfcheck import SelfCheckConfig, _confirmed, _Decision, _Scores, seed_change
 

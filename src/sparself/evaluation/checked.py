@@ -61,6 +61,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         check_seed=fit_seed(ev.cfg, seed),
         gain_gap=ev.cfg.check_gain_gap,
         pixel_weights=ev.cfg.check_pixel_weights,
+        keep=ev.cfg.check_keep,
     )
 
 

@@ -87,6 +87,9 @@ class EvalConfig:
     check_pixel_weights: Literal["confidence", "uniform"] = option(
         "confidence", "per-pixel weights of the checked row's views (densify --pixel-weights)"
     )
+    check_keep: Literal["each", "together"] = option(
+        "each", "which views a fold of the checked row's self-check keeps (densify --keep)"
+    )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(

@@ -114,6 +114,12 @@ class SelfCheckConfig:
         "confidence, lowered where a view agrees with the render (confidence), or the synthetic-frame weight "
         "on every pixel (uniform: what a trainer that ignores masks, such as gsplat's, fits)",
     )
+    keep: KeepRule = option(
+        "each",
+        "which views a fold keeps: those that gain on their own, refitted alone when they are not all of them "
+        "(each), or every view of the fold when together they gain and none otherwise (together: one decision "
+        "per fold, less chosen on the held-back photos' noise)",
+    )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
         None,
@@ -168,6 +174,7 @@ class Checked:
 
 
 PixelWeights = Literal["confidence", "uniform"]
+KeepRule = Literal["each", "together"]
 FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
 
 
@@ -371,13 +378,14 @@ class _Decision:
 
 
 def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: float, fits: FitMany, cfg):
-    """Per fold, the views that gain at weight ``w``; where that is a proper subset it is refitted alone (all
-    such refits at once) and kept when it beats every view together (:func:`_settle`)."""
+    """Per fold, the views that gain at weight ``w`` (every view with ``cfg.keep`` together); where that is a
+    proper subset it is refitted alone (all such refits at once) and kept when it beats every view together
+    (:func:`_settle`)."""
     gains = [
         view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.scored)
         for f, (s, _) in zip(folds, scored)
     ]
-    keeps = [g > cfg.min_gain for g in gains]
+    keeps = [np.ones(len(g), bool) if cfg.keep == "together" else g > cfg.min_gain for g in gains]
     partial = [k for k, keep in enumerate(keeps) if 0 < keep.sum() < len(keep)]
     scenes = [_kept_scene(small, folds[k], scored[k][1], keeps[k], w) for k in partial]
     alone = {k: held_back_psnr(small, r, folds[k].scored) for k, r in zip(partial, fits(scenes))}
