@@ -14,6 +14,8 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 
 PlannedSection = Literal["midpoints", "extrapolations"]
 Gap = Literal["other", "own"]  # where the self-check measures a view's gain (evaluation.folds)
+PixelWeights = Literal["confidence", "uniform"]  # per-pixel weights of the self-check's views
+KeepRule = Literal["each", "together"]  # which views a self-check fold keeps
 # results of the planned views that have a real photo
 PLANNED_SECTIONS: tuple[PlannedSection, ...] = ("midpoints", "extrapolations")
 
@@ -84,12 +86,10 @@ class EvalConfig:
         "own",
         "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
     )
-    check_pixel_weights: Literal["confidence", "uniform"] = option(
+    check_pixel_weights: PixelWeights = option(
         "confidence", "per-pixel weights of the checked row's views (densify --pixel-weights)"
     )
-    check_keep: Literal["each", "together"] = option(
-        "each", "which views a fold of the checked row's self-check keeps (densify --keep)"
-    )
+    check_keep: KeepRule = option("each", "which views a fold of the checked row's self-check keeps (densify --keep)")
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(

@@ -51,7 +51,7 @@ from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
-from sparself.evaluation.config import Gap
+from sparself.evaluation.config import Gap, KeepRule, PixelWeights
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
 from sparself.evaluation.folds import check_folds, measuring_fold, measuring_photos, stand_ins, view_gains
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
@@ -173,8 +173,6 @@ class Checked:
     reference: Renderer | None = None  # the fit on all inputs at the check size whose renders it merged in
 
 
-PixelWeights = Literal["confidence", "uniform"]
-KeepRule = Literal["each", "together"]
 FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
 
 
