@@ -14,7 +14,10 @@ class BarSafeHandler(logging.Handler):
         try:
             from tqdm import tqdm
 
-            tqdm.write(self.format(record), file=sys.stderr)
+            # one write of the line and its newline: tqdm.write makes two, and a signal between them left
+            # the interruption message on the end of the last log line
+            with tqdm.external_write_mode(file=sys.stderr):
+                sys.stderr.write(self.format(record) + "\n")
         except Exception:
             self.handleError(record)
 
