@@ -12,15 +12,19 @@ import pytest
 from planescene import plane_scene, render_plane, small_plane_scene
 from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
-from sparself.capture.io.dense import SelfCheck, ViewCheck, read_selfcheck
+from sparself.capture.io.dense import GapTrend, SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.geometry import Pose
 from sparself.evaluation.folds import (
+    beyond,
     check_folds,
     checkable,
     measuring_fold,
     measuring_photos,
+    one_wide_gain,
     stand_ins,
+    trend_fold,
     view_gains,
+    widened_gaps,
 )
 from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
@@ -406,11 +410,60 @@ def test_kept_views_whose_gain_is_within_what_the_fits_seed_alone_changes_are_no
     assert seed_change([_Scores(without, {})]) is None  # no second seed fitted: the rule does not apply
 
 
+def test_a_pair_held_back_together_leaves_a_gap_three_inputs_wide():
+    scene = _line(14)
+    held = trend_fold(14)
+    assert held == [1, 2, 7, 8]  # neighbouring interior pairs, never an end
+    idx = [f.index for f in scene.frames]
+    assert widened_gaps(scene, held) == [(idx[0], idx[3])] * 2 + [(idx[6], idx[9])] * 2
+    views = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate((0.5, 2.5, 3.5, 8.5, 12.5))]
+    assert checkable(scene, views, "own", held).tolist() == [True, True, False, True, False]
+    assert trend_fold(3) == [] and trend_fold(4) == [1, 2]
+    # linear in the log of the width: from +1 dB two wide and +2 three wide, 1 - log(2) / log(1.5) one wide
+    assert one_wide_gain(1.0, 2.0) == pytest.approx(-0.7095, abs=1e-4)
+    assert one_wide_gain(2.0, 1.0) == pytest.approx(3.7095, abs=1e-4) and one_wide_gain(1.0, 1.0) == 1.0
+
+
+def test_with_the_gap_trend_no_view_between_the_inputs_is_kept_when_its_gain_extrapolates_to_a_loss(monkeypatch):
+    from sparself.evaluation import selfcheck
+
+    scene = _line(14)
+    planned = plan_poses(scene, PlanConfig(n_mid=8, n_extra=2))
+    past = beyond(scene, planned)
+    sources: list[tuple[set, set]] = []
+
+    def synth(sc, targets):
+        sources.append(({f.name for f in sc.frames}, {t.name for t in targets}))
+        return Synthesized(_exact(sc, targets), np.full((len(targets), 64, 96), 0.9, np.float32))
+
+    def check(cfg):
+        return selfcheck.self_check(scene, planned, synth, _exact(scene, planned), cfg, "paper").record
+
+    plain = replace(MPI, gain_gap="own", fixer=False)
+    before = check(plain)
+    assert before.gap_trend is None and any(v.kept for v, p in zip(before.views, past) if not p)
+    extrapolated: list[tuple[float, float]] = []
+    monkeypatch.setattr(selfcheck, "one_wide_gain", lambda two, three: extrapolated.append((two, three)) or -1.0)
+    sources.clear()
+    rec = check(replace(plain, gap_trend=True))
+    pairs = {scene.frames[i].name for i in trend_fold(14)}
+    # the gap-trend fold synthesizes its views and its held-back photos without them
+    assert any(made.isdisjoint(pairs) and pairs <= targets for made, targets in sources)
+    assert rec.gap_trend == GapTrend(*extrapolated[0], -1.0, False)
+    # no view between the inputs is kept; those past the ends keep the ends fold's decision
+    assert not any(v.kept for v, p in zip(rec.views, past) if not p)
+    assert [v.kept for v, p in zip(rec.views, past) if p] == [v.kept for v, p in zip(before.views, past) if p]
+    assert "none between the inputs is kept" in rec.reason
+    monkeypatch.setattr(selfcheck, "one_wide_gain", lambda two, three: 1.0)
+    kept = check(replace(plain, gap_trend=True))  # the extrapolated gain pays: every decision stands
+    assert kept.gap_trend is not None and kept.gap_trend.interior_kept and kept.views == before.views
+
+
 def test_the_self_check_record_round_trips_through_json():
     views = (ViewCheck("n", 1.5, 0.3, True), ViewCheck("m", 2.5, None, False))
     rec = SelfCheck("3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, views, "r")
     assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
-    seeded = replace(rec, psnr_other_seed=19.75)
+    seeded = replace(rec, psnr_other_seed=19.75, gap_trend=GapTrend(1.25, 2.0, -0.03, False))
     assert SelfCheck.from_json(json.loads(json.dumps(seeded.to_json()))) == seeded
     assert rec.kept == ("n",)
 

@@ -62,6 +62,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         gain_gap=ev.cfg.check_gain_gap,
         pixel_weights=ev.cfg.check_pixel_weights,
         keep=ev.cfg.check_keep,
+        gap_trend=ev.cfg.check_gap_trend,
     )
 
 

@@ -90,6 +90,11 @@ class EvalConfig:
         "confidence", "per-pixel weights of the checked row's views (densify --pixel-weights)"
     )
     check_keep: KeepRule = option("each", "which views a fold of the checked row's self-check keeps (densify --keep)")
+    check_gap_trend: bool = option(
+        False,
+        "the checked row's self-check keeps views between the inputs only where their gain's trend with the "
+        "gap's width says they pay in the final fit (densify --gap-trend)",
+    )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(

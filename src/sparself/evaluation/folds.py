@@ -25,6 +25,7 @@ from sparself.evaluation.weighting import validation_inputs
 from sparself.synthesis.plan import planned_frame
 
 ENDS_MIN = 6  # inputs a capture needs for the ends fold: two extrapolate each stand-in after both ends go
+TREND_EVERY = 6  # the gap-trend fold holds back a neighbouring pair of inputs every this many
 
 
 def check_folds(n: int, gap: Gap) -> list[list[int]]:
@@ -58,6 +59,42 @@ def check_folds(n: int, gap: Gap) -> list[list[int]]:
     return [first] + [second] * bool(second) + ends
 
 
+def trend_fold(n: int) -> list[int]:
+    """The gap-trend fold: interior positions among n inputs held back in neighbouring pairs, every
+    TREND_EVERY, so that each pair leaves a gap three inputs wide (the own-gap folds leave two); empty below 4.
+
+    >>> trend_fold(25)
+    [1, 2, 7, 8, 13, 14, 19, 20]
+    >>> trend_fold(9)
+    [1, 2]
+    """
+    return [q for p in range(1, n - 2, TREND_EVERY) for q in (p, p + 1)]
+
+
+def one_wide_gain(two: float, three: float) -> float:
+    """A view's gain in gaps one input wide (the final fit's), extrapolated linearly in the log of the gap's
+    width from its gains in gaps two and three wide: a gain that grows with the width shrinks below it.
+
+    >>> round(one_wide_gain(1.0, 2.0), 3)
+    -0.71
+    """
+    return two - (three - two) * float(np.log(2.0) / np.log(1.5))
+
+
+def widened_gaps(inputs: Scene, held: list[int]) -> list[tuple[float, float]]:
+    """The index interval each held-back position leaves open: from the nearest input kept before it to the
+    nearest kept after it (``inputs`` in path order, ``held`` interior)."""
+    idx, out = [f.index for f in inputs.frames], []
+    for p in held:
+        lo, hi = p - 1, p + 1
+        while lo in held:
+            lo -= 1
+        while hi in held:
+            hi += 1
+        out.append((min(idx[lo], idx[hi]), max(idx[lo], idx[hi])))
+    return out
+
+
 def beyond(inputs: Scene, frames: list[Frame]) -> np.ndarray:
     """(T,) bool: the frames past the first or the last input (``inputs`` in path order)."""
     lo, hi = inputs.frames[0].index, inputs.frames[-1].index
@@ -82,19 +119,19 @@ def stand_ins(inputs: Scene, frames: list[Frame]) -> list[Frame]:
 
 def checkable(inputs: Scene, planned: list[Frame], gap: Gap, held: list[int] | None = None) -> np.ndarray:
     """(T,) bool: the planned views outside every held-back input's widened gap, the open interval between
-    the indices of the inputs on either side of it (``inputs`` in path order; ``held``: the held-back
-    positions, default :func:`validation_inputs`); with ``gap`` "own", the views inside one instead.
+    the indices of the nearest inputs kept on either side of it (:func:`widened_gaps`; ``inputs`` in path
+    order; ``held``: the held-back positions, default :func:`validation_inputs`); with ``gap`` "own", the
+    views inside one instead.
 
     A view inside one is measured where the check's fit lacks a photo the final fit has: its gain there is a
     hole the final fit never has ("other": it does not carry over). But a view acts mostly in its own gap,
     and from outside it a view's gain is near zero ("own": measured there, at the price of that optimism).
     Views past the ends are checkable only by a fold holding an end back, and only they are."""
-    idx = [f.index for f in inputs.frames]
     held = validation_inputs(len(inputs)) if held is None else held
     past = beyond(inputs, planned)
-    if {0, len(idx) - 1} & set(held):
+    if {0, len(inputs) - 1} & set(held):
         return past
-    gaps = [sorted((idx[p - 1], idx[p + 1])) for p in held]
+    gaps = widened_gaps(inputs, held)
     inside = np.array([any(a < f.index < b for a, b in gaps) for f in planned], bool)
     return ~past & (inside if gap == "own" else ~inside)
 

@@ -24,6 +24,12 @@ poses it can be: the check measures with the error of its folds, whose gaps are 
   spread over the held-back photos and, with ``seed_noise``, more than a second seed alone moves the fits
   without views there (:func:`seed_change`; on a sparse capture that can be a dB or more).
   Independent fits run side by side (:mod:`sparself.recon.pool`).
+* **The gap's width** (``gap_trend``, off by default): a view's gain measured in a gap twice as wide as the
+  final fit's is optimistic where the reconstruction renders well. A further fold holds back neighbouring
+  pairs of inputs (:func:`~sparself.evaluation.folds.trend_fold`), leaving gaps three wide; the interior
+  views' mean gain in gaps two and three wide is extrapolated to one (linear in the log of the width), and
+  when that is not above ``min_gain`` no view between the inputs is kept (those past the ends keep their fold's
+  decision: there the final fit lacks the photos as the check's does).
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
@@ -46,14 +52,23 @@ import numpy as np
 import torch
 
 from sparself.capture.images import resize_images
-from sparself.capture.io.dense import SelfCheck, ViewCheck
+from sparself.capture.io.dense import GapTrend, SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain
 from sparself.core.options import check_choices, option
 from sparself.evaluation.config import Gap, KeepRule, PixelWeights
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
-from sparself.evaluation.folds import check_folds, measuring_fold, measuring_photos, stand_ins, view_gains
+from sparself.evaluation.folds import (
+    check_folds,
+    checkable,
+    measuring_fold,
+    measuring_photos,
+    one_wide_gain,
+    stand_ins,
+    trend_fold,
+    view_gains,
+)
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -120,6 +135,13 @@ class SelfCheckConfig:
         "(each), or every view of the fold when together they gain and none otherwise (together: one decision "
         "per fold, less chosen on the held-back photos' noise)",
     )
+    gap_trend: bool = option(
+        False,
+        "also fit a fold holding back neighbouring pairs of inputs (gaps three inputs wide, where the own-gap "
+        "folds leave two), extrapolate the views' gain between the inputs from those widths to the final "
+        "fit's (linear in the log of the width), and keep no view between the inputs when that is not above "
+        "min_gain (with gain_gap own)",
+    )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
         None,
@@ -154,6 +176,8 @@ class SelfCheckConfig:
             )
         if not self.check_weights or min(self.check_weights) <= 0:
             raise ConfigError(f"check_weights must be one or more weights > 0, got {self.check_weights}")
+        if self.gap_trend and self.gain_gap != "own":
+            raise ConfigError("gap_trend needs gain_gap own (it extrapolates the gain inside a view's own gap)")
         if self.agree_within < 0 or not 0 <= self.agree_weight <= 1:
             raise ConfigError(
                 f"agree_within must be >= 0 and agree_weight in [0, 1], got {self.agree_within}, {self.agree_weight}"
@@ -435,19 +459,28 @@ def self_check(
     if not held:
         return _nothing_checkable(small, planned, final, fits, cfg, plan)
     views = [[int(i) for i in np.flatnonzero(by == k)] for k in sorted(set(by[by >= 0]))]
-    bases = fits([validation_split(small, h)[1] for h in held])
+    wide = _trend_fold(small, planned, cfg)  # fitted beside the folds, scored apart from them
+    every = held + [h for h, _ in wide]
+    bases = fits([validation_split(small, h)[1] for h in every])
     others = None if other is None else other([validation_split(small, h)[1] for h in held])
-    made = [_fold(inputs, small, planned, h, v, synth, b) for h, v, b in zip(held, views, bases)]
-    folds, fix = _fixed_folds(made, cfg)
+    made = [
+        _fold(inputs, small, planned, h, v, synth, b) for h, v, b in zip(every, views + [v for _, v in wide], bases)
+    ]
+    folds, fix = _fixed_folds(made[: len(held)], cfg)
     scored = _scores(small, folds, fits, others, cfg)
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
     decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), scores, cfg)
+    trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
+    if trend is not None and not trend.interior_kept:
+        decided = [d if 0 in f.held else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
     record = _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan, unclear)
+    if trend is not None:
+        record = replace(record, gap_trend=trend, reason=record.reason + _trend_reason(trend))
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
     return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
 
@@ -471,7 +504,42 @@ def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[li
         gains.mean(),
         seed,
     )
-    return [_Decision(np.zeros(len(d.keep), bool), d.gains, s.without) for d, s in zip(decided, scores)], True
+    return [_dropped(d, s) for d, s in zip(decided, scores)], True
+
+
+def _dropped(d: _Decision, s: _Scores) -> _Decision:
+    """The fold's decision with none of its views kept (its gains still recorded)."""
+    return _Decision(np.zeros(len(d.keep), bool), d.gains, s.without)
+
+
+def _trend_fold(small: Scene, planned: list[Frame], cfg: SelfCheckConfig) -> list[tuple[list[int], list[int]]]:
+    """With ``cfg.gap_trend``, the gap-trend fold (:func:`~sparself.evaluation.folds.trend_fold`) as
+    [(held-back positions, the planned views inside its gaps)]; [] when off or none lies there."""
+    held = trend_fold(len(small)) if cfg.gap_trend else []
+    views = [int(i) for i in np.flatnonzero(checkable(small, planned, "own", held))] if held else []
+    return [(held, views)] if views else []
+
+
+def _gap_trend(small: Scene, folds: list[_Fold], scores: list[_Scores], wide: list[_Fold], w: float, fits, cfg):
+    """The interior views' gain at weight ``w`` in gaps two inputs wide (the interior folds' held-back photos)
+    and three wide (the gap-trend fold ``wide``, its views the network's, not fixed: no fixer trained
+    without its photos), extrapolated to one (:func:`~sparself.evaluation.folds.one_wide_gain`); None when
+    either is not measured."""
+    two = [s.by_weight[w] - s.without for f, s in zip(folds, scores) if 0 not in f.held]
+    if not wide or not two:
+        return None
+    [(three, _)] = _scores(small, wide, fits, None, replace(cfg, check_weights=(w,)))
+    g2, g3 = float(np.concatenate(two).mean()), float((three.by_weight[w] - three.without).mean())
+    g1 = one_wide_gain(g2, g3)
+    log.info(
+        "self-check: the views between the inputs gain %+.2f dB in gaps two inputs wide, %+.2f in gaps three "
+        "wide: %+.2f extrapolated to the final fit's gaps%s",
+        g2,
+        g3,
+        g1,
+        "" if g1 > cfg.min_gain else " (none of them is kept)",
+    )
+    return GapTrend(g2, g3, g1, g1 > cfg.min_gain)
 
 
 def seed_change(scores: list[_Scores]) -> float | None:
@@ -586,6 +654,18 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
     factor = np.clip(resize_images(factor, (images.shape[2], images.shape[1])), 0.0, 1.0)
     base = np.ones(images.shape[:3], np.float32) if conf is None else np.asarray(conf, np.float32)
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
+
+
+def _trend_reason(trend: GapTrend) -> str:
+    return (
+        ""
+        if trend.interior_kept
+        else (
+            f"; none between the inputs is kept: their gain there, {trend.gain_two_wide:+.2f} dB in gaps two inputs "
+            f"wide and {trend.gain_three_wide:+.2f} in gaps three wide, extrapolates to {trend.gain_one_wide:+.2f} "
+            f"in the final fit's"
+        )
+    )
 
 
 def _reason(

@@ -80,6 +80,28 @@ class FixerCheck:
 
 
 @dataclass(frozen=True)
+class GapTrend:
+    """How the interior views' gain changes with the width of the gap they fill (``sparself.json``, in
+    ``selfcheck``): mean dB gain at the held-back photos in gaps two inputs wide (the own-gap folds) and three
+    wide (the gap-trend fold), and that gain extrapolated to the final fit's gaps, one wide; interior_kept:
+    whether the interior views could be kept (the extrapolated gain is above the check's minimum)."""
+
+    gain_two_wide: float
+    gain_three_wide: float
+    gain_one_wide: float
+    interior_kept: bool
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "GapTrend":
+        return cls(
+            gain_two_wide=float(doc["gain_two_wide"]),
+            gain_three_wide=float(doc["gain_three_wide"]),
+            gain_one_wide=float(doc["gain_one_wide"]),
+            interior_kept=bool(doc["interior_kept"]),
+        )
+
+
+@dataclass(frozen=True)
 class SelfCheck:
     """The densify self-check's decision and the numbers it was made on (``sparself.json``, key ``selfcheck``).
 
@@ -89,7 +111,8 @@ class SelfCheck:
     (each fold's fits with its own views); psnr_kept: with the kept views only (None: none kept); weight: the
     chosen synthetic-frame weight (None: no view kept); views: every planned view; reason: the decision in
     words; fixer: the fixer's test (None: not tried); psnr_other_seed: the held-back photos' mean PSNR fitted
-    without views at a second seed (None: not fitted), which bounds how much the fit's seed alone moves them."""
+    without views at a second seed (None: not fitted), which bounds how much the fit's seed alone moves them;
+    gap_trend: the interior views' gain against the width of their gap (None: not measured)."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -104,6 +127,7 @@ class SelfCheck:
     reason: str
     fixer: FixerCheck | None = None
     psnr_other_seed: float | None = None
+    gap_trend: GapTrend | None = None
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -131,6 +155,7 @@ class SelfCheck:
             reason=str(doc["reason"]),
             fixer=FixerCheck.from_json(doc["fixer"]) if doc.get("fixer") else None,
             psnr_other_seed=_opt_float(doc.get("psnr_other_seed")),
+            gap_trend=GapTrend.from_json(doc["gap_trend"]) if doc.get("gap_trend") else None,
         )
 
 
