@@ -459,6 +459,30 @@ def test_with_the_gap_trend_no_view_between_the_inputs_is_kept_when_its_gain_ext
     assert kept.gap_trend is not None and kept.gap_trend.interior_kept and kept.views == before.views
 
 
+def test_a_fold_whose_views_spoil_a_held_back_photo_far_from_them_keeps_none_with_a_photo_loss_limit(monkeypatch):
+    from sparself.evaluation import selfcheck
+    from sparself.evaluation.weighting import ValidationViews
+
+    # a fold holding back photos 1, 5 and 9; its one view is nearest photo 1, where it is scored
+    views = ValidationViews(np.zeros((1, 2, 2, 3), np.float32), None, [])
+    fold = selfcheck._Fold([1, 5, 9], "base", [0], [1], [], views, None, None)  # type: ignore[arg-type]
+    psnr = {"base": np.array([20.0, 21.0, 22.0]), "with 1.0": np.array([21.0, 20.8, 19.5])}
+    monkeypatch.setattr(selfcheck, "weight_scenes", lambda small, frames, v, weights, held: list(weights))
+    monkeypatch.setattr(selfcheck, "held_back_psnr", lambda small, r, held: psnr[r][[[1, 5, 9].index(h) for h in held]])
+    cfg = SelfCheckConfig(pixel_weights="uniform", check_weights=(1.0,))
+    [(scores, _)] = selfcheck._scores(None, [fold], lambda scenes: [f"with {w}" for w in scenes], None, cfg)
+    # the view gains +1 dB where it is scored, and photo 9, nearest no view, loses 2.5 dB
+    assert scores.by_weight[1.0] - scores.without == pytest.approx([1.0]) and scores.worst[1.0] == pytest.approx(-2.5)
+    kept = [selfcheck._Decision(np.array([True]), np.array([1.0]), np.array([21.0]))]
+
+    def spared(limit):
+        return selfcheck._spared([fold], kept, [scores], 1.0, replace(cfg, max_photo_loss=limit))[0]
+
+    assert spared(None) is kept[0] and spared(3.0) is kept[0]
+    dropped = spared(1.0)
+    assert not dropped.keep.any() and dropped.chosen == pytest.approx([20.0]) and dropped.gains == pytest.approx([1.0])
+
+
 def test_the_self_check_record_round_trips_through_json():
     views = (ViewCheck("n", 1.5, 0.3, True), ViewCheck("m", 2.5, None, False))
     rec = SelfCheck("3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, views, "r")

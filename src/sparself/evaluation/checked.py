@@ -63,6 +63,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         pixel_weights=ev.cfg.check_pixel_weights,
         keep=ev.cfg.check_keep,
         gap_trend=ev.cfg.check_gap_trend,
+        max_photo_loss=ev.cfg.check_max_photo_loss,
     )
 
 

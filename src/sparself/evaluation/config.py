@@ -95,6 +95,11 @@ class EvalConfig:
         "the checked row's self-check keeps views between the inputs only where their gain's trend with the "
         "gap's width says they pay in the final fit (densify --gap-trend)",
     )
+    check_max_photo_loss: float | None = option(
+        None,
+        "dB a held-back photo of the checked row's self-check may lose before a fold's views go (densify "
+        "--max-photo-loss)",
+    )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(

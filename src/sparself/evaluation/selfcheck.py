@@ -45,7 +45,7 @@ with each other, so they need not be the user's final fit, only alike.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Literal
 
 import numpy as np
@@ -142,6 +142,11 @@ class SelfCheckConfig:
         "fit's (linear in the log of the width), and keep no view between the inputs when that is not above "
         "min_gain (with gain_gap own)",
     )
+    max_photo_loss: float | None = option(
+        None,
+        "dB: drop a fold's views when, fitted with all of them, any of its held-back photos loses more than this, "
+        "near a view or not (a view can spoil a 3DGS fit far from its own gap); unset: not checked",
+    )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
         None,
@@ -176,6 +181,8 @@ class SelfCheckConfig:
             )
         if not self.check_weights or min(self.check_weights) <= 0:
             raise ConfigError(f"check_weights must be one or more weights > 0, got {self.check_weights}")
+        if self.max_photo_loss is not None and self.max_photo_loss < 0:
+            raise ConfigError(f"max_photo_loss must be >= 0 dB, got {self.max_photo_loss}")
         if self.gap_trend and self.gain_gap != "own":
             raise ConfigError("gap_trend needs gain_gap own (it extrapolates the gain inside a view's own gap)")
         if self.agree_within < 0 or not 0 <= self.agree_weight <= 1:
@@ -369,6 +376,7 @@ class _Scores:
     without: np.ndarray
     by_weight: dict[float, np.ndarray]
     other: np.ndarray | None = None
+    worst: dict[float, float] = field(default_factory=dict)  # per weight: the largest drop at any held-back photo
 
 
 def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfg):
@@ -386,9 +394,12 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     fitted = iter(fits(scenes))
     out = []
     for k, (f, v) in enumerate(zip(folds, lowered)):
-        by_weight = {float(w): held_back_psnr(small, next(fitted), f.scored) for w in cfg.check_weights}
+        every = held_back_psnr(small, f.base, f.held)
+        at = [f.held.index(h) for h in f.scored]
+        with_views = {float(w): held_back_psnr(small, next(fitted), f.held) for w in cfg.check_weights}
+        worst = {w: float((p - every).min()) for w, p in with_views.items()}
         other = None if others is None else held_back_psnr(small, others[k], f.scored)
-        out.append((_Scores(held_back_psnr(small, f.base, f.scored), by_weight, other), v))
+        out.append((_Scores(every[at], {w: p[at] for w, p in with_views.items()}, other, worst), v))
     return out
 
 
@@ -475,6 +486,7 @@ def self_check(
     trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
     if trend is not None and not trend.interior_kept:
         decided = [d if 0 in f.held else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
+    decided = _spared(folds, decided, scores, w, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
@@ -505,6 +517,26 @@ def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[li
         seed,
     )
     return [_dropped(d, s) for d, s in zip(decided, scores)], True
+
+
+def _spared(folds: list[_Fold], decided: list[_Decision], scores: list[_Scores], w: float, cfg) -> list[_Decision]:
+    """The decisions with every view of a fold dropped where, fitted with all its views at weight ``w``, one
+    of its held-back photos loses more than ``cfg.max_photo_loss`` dB (unset: unchanged)."""
+    if cfg.max_photo_loss is None:
+        return decided
+    out = []
+    for f, d, s in zip(folds, decided, scores):
+        spoilt = d.keep.any() and s.worst[w] < -cfg.max_photo_loss
+        if spoilt:
+            log.info(
+                "self-check: the views of the fold holding back %s are dropped: with them a held-back photo loses "
+                "%.2f dB (more than %.2f)",
+                ", ".join(str(h) for h in f.held),
+                -s.worst[w],
+                cfg.max_photo_loss,
+            )
+        out.append(_dropped(d, s) if spoilt else d)
+    return out
 
 
 def _dropped(d: _Decision, s: _Scores) -> _Decision:
