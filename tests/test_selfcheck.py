@@ -473,14 +473,19 @@ def test_a_fold_whose_views_spoil_a_held_back_photo_far_from_them_keeps_none_wit
     [(scores, _)] = selfcheck._scores(None, [fold], lambda scenes: [f"with {w}" for w in scenes], None, cfg)
     # the view gains +1 dB where it is scored, and photo 9, nearest no view, loses 2.5 dB
     assert scores.by_weight[1.0] - scores.without == pytest.approx([1.0]) and scores.worst[1.0] == pytest.approx(-2.5)
-    kept = [selfcheck._Decision(np.array([True]), np.array([1.0]), np.array([21.0]))]
+    kept = [selfcheck._settle(np.array([True]), np.array([1.0]), scores, 1.0, None, cfg, fold)]
+    assert kept[0].keep.all() and kept[0].worst == pytest.approx(-2.5)
 
     def spared(limit):
-        return selfcheck._spared([fold], kept, [scores], 1.0, replace(cfg, max_photo_loss=limit))[0]
+        return selfcheck._spared([fold], kept, [scores], replace(cfg, max_photo_loss=limit))[0]
 
     assert spared(None) is kept[0] and spared(3.0) is kept[0]
     dropped = spared(1.0)
     assert not dropped.keep.any() and dropped.chosen == pytest.approx([20.0]) and dropped.gains == pytest.approx([1.0])
+    # a subset refitted alone that scores higher is judged by its own fit: there photo 9 loses only 0.1 dB
+    subset = selfcheck._settle(np.array([True]), np.array([1.0]), scores, 1.0, np.array([21.5, 21.0, 21.9]), cfg, fold)
+    assert subset.chosen == pytest.approx([21.5]) and subset.worst == pytest.approx(-0.1)
+    assert selfcheck._spared([fold], [subset], [scores], replace(cfg, max_photo_loss=1.0))[0] is subset
 
 
 def test_the_self_check_record_round_trips_through_json():

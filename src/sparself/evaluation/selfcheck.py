@@ -144,7 +144,7 @@ class SelfCheckConfig:
     )
     max_photo_loss: float | None = option(
         None,
-        "dB: drop a fold's views when, fitted with all of them, any of its held-back photos loses more than this, "
+        "dB: drop a fold's views when, fitted with those it keeps, any of its held-back photos loses more than this, "
         "near a view or not (a view can spoil a 3DGS fit far from its own gap); unset: not checked",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
@@ -376,7 +376,8 @@ class _Scores:
     without: np.ndarray
     by_weight: dict[float, np.ndarray]
     other: np.ndarray | None = None
-    worst: dict[float, float] = field(default_factory=dict)  # per weight: the largest drop at any held-back photo
+    worst: dict[float, float] = field(default_factory=dict)  # per weight: the change at the photo that loses most
+    held_without: np.ndarray | None = None  # PSNR without views at every held-back photo, scored or not
 
 
 def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfg):
@@ -399,7 +400,7 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
         with_views = {float(w): held_back_psnr(small, next(fitted), f.held) for w in cfg.check_weights}
         worst = {w: float((p - every).min()) for w, p in with_views.items()}
         other = None if others is None else held_back_psnr(small, others[k], f.scored)
-        out.append((_Scores(every[at], {w: p[at] for w, p in with_views.items()}, other, worst), v))
+        out.append((_Scores(every[at], {w: p[at] for w, p in with_views.items()}, other, worst, every), v))
     return out
 
 
@@ -408,6 +409,7 @@ class _Decision:
     keep: np.ndarray  # (V,) bool, the fold's views
     gains: np.ndarray  # (V,) dB
     chosen: np.ndarray  # held-back PSNR of the kept views (without views when none is kept)
+    worst: float | None = None  # dB change, with the kept views, at the fold's held-back photo that loses most
 
 
 def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: float, fits: FitMany, cfg):
@@ -421,8 +423,8 @@ def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: f
     keeps = [np.ones(len(g), bool) if cfg.keep == "together" else g > cfg.min_gain for g in gains]
     partial = [k for k, keep in enumerate(keeps) if 0 < keep.sum() < len(keep)]
     scenes = [_kept_scene(small, folds[k], scored[k][1], keeps[k], w) for k in partial]
-    alone = {k: held_back_psnr(small, r, folds[k].scored) for k, r in zip(partial, fits(scenes))}
-    return [_settle(keeps[k], gains[k], scored[k][0], w, alone.get(k), cfg) for k in range(len(folds))]
+    alone = {k: held_back_psnr(small, r, folds[k].held) for k, r in zip(partial, fits(scenes))}
+    return [_settle(keeps[k], gains[k], scored[k][0], w, alone.get(k), cfg, folds[k]) for k in range(len(folds))]
 
 
 def _kept_scene(small: Scene, fold: _Fold, views: ValidationViews, keep, w: float) -> Scene:
@@ -431,18 +433,21 @@ def _kept_scene(small: Scene, fold: _Fold, views: ValidationViews, keep, w: floa
     return weight_scenes(small, [fold.frames[i] for i in idx], sub, [w], fold.held)[0]
 
 
-def _settle(keep: np.ndarray, gains: np.ndarray, sc: _Scores, w: float, alone: np.ndarray | None, cfg) -> _Decision:
-    """The fold's decision: the gaining views when their fit alone (``alone``) beats every view together,
-    else every view; none when that does not beat the fit without views."""
-    chosen = sc.by_weight[w]
+def _settle(keep, gains, sc: _Scores, w: float, alone: np.ndarray | None, cfg, fold: _Fold) -> _Decision:
+    """The fold's decision: the gaining views when their fit alone (``alone``: PSNR at every held-back photo
+    of ``fold``) beats every view together, else every view; none when that does not beat the fit without
+    views."""
+    chosen, worst = sc.by_weight[w], sc.worst.get(w)
     if alone is not None:
-        if alone.mean() >= chosen.mean():
-            chosen = alone
+        scored = alone[[fold.held.index(h) for h in fold.scored]]
+        if scored.mean() >= chosen.mean():
+            chosen = scored
+            worst = None if sc.held_without is None else float((alone - sc.held_without).min())
         else:
             keep = np.ones(len(keep), bool)
     if not keep.any() or chosen.mean() - sc.without.mean() <= cfg.min_gain:
         return _Decision(np.zeros(len(keep), bool), gains, sc.without)
-    return _Decision(keep, gains, chosen)
+    return _Decision(keep, gains, chosen, worst)
 
 
 def self_check(
@@ -486,7 +491,7 @@ def self_check(
     trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
     if trend is not None and not trend.interior_kept:
         decided = [d if 0 in f.held else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
-    decided = _spared(folds, decided, scores, w, cfg)
+    decided = _spared(folds, decided, scores, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
@@ -519,20 +524,20 @@ def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[li
     return [_dropped(d, s) for d, s in zip(decided, scores)], True
 
 
-def _spared(folds: list[_Fold], decided: list[_Decision], scores: list[_Scores], w: float, cfg) -> list[_Decision]:
-    """The decisions with every view of a fold dropped where, fitted with all its views at weight ``w``, one
-    of its held-back photos loses more than ``cfg.max_photo_loss`` dB (unset: unchanged)."""
+def _spared(folds: list[_Fold], decided: list[_Decision], scores: list[_Scores], cfg) -> list[_Decision]:
+    """The decisions with every view of a fold dropped where, fitted with the views it keeps, one of its
+    held-back photos, scored or not, loses more than ``cfg.max_photo_loss`` dB (unset: unchanged)."""
     if cfg.max_photo_loss is None:
         return decided
     out = []
     for f, d, s in zip(folds, decided, scores):
-        spoilt = d.keep.any() and s.worst[w] < -cfg.max_photo_loss
+        spoilt = d.keep.any() and d.worst is not None and d.worst < -cfg.max_photo_loss
         if spoilt:
             log.info(
                 "self-check: the views of the fold holding back %s are dropped: with them a held-back photo loses "
                 "%.2f dB (more than %.2f)",
                 ", ".join(str(h) for h in f.held),
-                -s.worst[w],
+                -(d.worst or 0.0),
                 cfg.max_photo_loss,
             )
         out.append(_dropped(d, s) if spoilt else d)
