@@ -96,7 +96,7 @@ class EvalConfig:
         "gap's width says they pay in the final fit (densify --gap-trend)",
     )
     check_max_photo_loss: float | None = option(
-        None,
+        1.0,
         "dB a held-back photo of the checked row's self-check may lose before a fold's views go (densify "
         "--max-photo-loss)",
     )

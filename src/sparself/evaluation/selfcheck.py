@@ -143,9 +143,10 @@ class SelfCheckConfig:
         "min_gain (with gain_gap own)",
     )
     max_photo_loss: float | None = option(
-        None,
+        1.0,
         "dB: drop a fold's views when, fitted with those it keeps, any of its held-back photos loses more than this, "
-        "near a view or not (a view can spoil a 3DGS fit far from its own gap); unset: not checked",
+        "near a view or not (a view can spoil a 3DGS fit far from its own gap; measured, this kept the 3DGS at or "
+        "above N on every seed where nothing else did); inf: never",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
