@@ -331,6 +331,16 @@ class _Fold:
     reference: np.ndarray  # (V, h, w, 3)
     pairs: FixerPairs
 
+    @property
+    def at_scored(self) -> list[int]:
+        """Where the scored photos are among ``held`` (to take their PSNR from one at every held-back photo)."""
+        return [self.held.index(h) for h in self.scored]
+
+    @property
+    def past_ends(self) -> bool:
+        """Whether this is the fold holding both end photos back (for the views past them)."""
+        return 0 in self.held
+
 
 def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, base) -> _Fold:
     """The fold with ``base`` (the fit without ``held``): its views and its held-back photos synthesized from
@@ -396,8 +406,7 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     fitted = iter(fits(scenes))
     out = []
     for k, (f, v) in enumerate(zip(folds, lowered)):
-        every = held_back_psnr(small, f.base, f.held)
-        at = [f.held.index(h) for h in f.scored]
+        every, at = held_back_psnr(small, f.base, f.held), f.at_scored
         with_views = {float(w): held_back_psnr(small, next(fitted), f.held) for w in cfg.check_weights}
         worst = {w: float((p - every).min()) for w, p in with_views.items()}
         other = None if others is None else held_back_psnr(small, others[k], f.scored)
@@ -434,13 +443,15 @@ def _kept_scene(small: Scene, fold: _Fold, views: ValidationViews, keep, w: floa
     return weight_scenes(small, [fold.frames[i] for i in idx], sub, [w], fold.held)[0]
 
 
-def _settle(keep, gains, sc: _Scores, w: float, alone: np.ndarray | None, cfg, fold: _Fold) -> _Decision:
+def _settle(
+    keep: np.ndarray, gains: np.ndarray, sc: _Scores, w: float, alone: np.ndarray | None, cfg, fold: _Fold
+) -> _Decision:
     """The fold's decision: the gaining views when their fit alone (``alone``: PSNR at every held-back photo
     of ``fold``) beats every view together, else every view; none when that does not beat the fit without
     views."""
     chosen, worst = sc.by_weight[w], sc.worst.get(w)
     if alone is not None:
-        scored = alone[[fold.held.index(h) for h in fold.scored]]
+        scored = alone[fold.at_scored]
         if scored.mean() >= chosen.mean():
             chosen = scored
             worst = None if sc.held_without is None else float((alone - sc.held_without).min())
@@ -491,7 +502,7 @@ def self_check(
     decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), scores, cfg)
     trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
     if trend is not None and not trend.interior_kept:
-        decided = [d if 0 in f.held else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
+        decided = [d if f.past_ends else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
     decided = _spared(folds, decided, scores, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
@@ -532,16 +543,17 @@ def _spared(folds: list[_Fold], decided: list[_Decision], scores: list[_Scores],
         return decided
     out = []
     for f, d, s in zip(folds, decided, scores):
-        spoilt = d.keep.any() and d.worst is not None and d.worst < -cfg.max_photo_loss
-        if spoilt:
-            log.info(
-                "self-check: the views of the fold holding back %s are dropped: with them a held-back photo loses "
-                "%.2f dB (more than %.2f)",
-                ", ".join(str(h) for h in f.held),
-                -(d.worst or 0.0),
-                cfg.max_photo_loss,
-            )
-        out.append(_dropped(d, s) if spoilt else d)
+        if not d.keep.any() or d.worst is None or d.worst >= -cfg.max_photo_loss:
+            out.append(d)
+            continue
+        log.info(
+            "self-check: the views of the fold holding back %s are dropped: with them a held-back photo loses "
+            "%.2f dB (more than %.2f)",
+            ", ".join(str(h) for h in f.held),
+            -d.worst,
+            cfg.max_photo_loss,
+        )
+        out.append(_dropped(d, s))
     return out
 
 
@@ -563,7 +575,7 @@ def _gap_trend(small: Scene, folds: list[_Fold], scores: list[_Scores], wide: li
     and three wide (the gap-trend fold ``wide``, its views the network's, not fixed: no fixer trained
     without its photos), extrapolated to one (:func:`~sparself.evaluation.folds.one_wide_gain`); None when
     either is not measured."""
-    two = [s.by_weight[w] - s.without for f, s in zip(folds, scores) if 0 not in f.held]
+    two = [s.by_weight[w] - s.without for f, s in zip(folds, scores) if not f.past_ends]
     if not wide or not two:
         return None
     [(three, _)] = _scores(small, wide, fits, None, replace(cfg, check_weights=(w,)))
@@ -695,14 +707,12 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
 
 
 def _trend_reason(trend: GapTrend) -> str:
+    if trend.interior_kept:
+        return ""
     return (
-        ""
-        if trend.interior_kept
-        else (
-            f"; none between the inputs is kept: their gain there, {trend.gain_two_wide:+.2f} dB in gaps two inputs "
-            f"wide and {trend.gain_three_wide:+.2f} in gaps three wide, extrapolates to {trend.gain_one_wide:+.2f} "
-            f"in the final fit's"
-        )
+        f"; none between the inputs is kept: their gain there, {trend.gain_two_wide:+.2f} dB in gaps two inputs "
+        f"wide and {trend.gain_three_wide:+.2f} in gaps three wide, extrapolates to {trend.gain_one_wide:+.2f} "
+        f"in the final fit's"
     )
 
 
