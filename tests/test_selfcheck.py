@@ -362,6 +362,27 @@ def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_ar
     assert not unclear and decided is steady
 
 
+def test_views_left_after_a_fold_is_dropped_for_a_photo_loss_must_show_a_clear_gain_on_their_own():
+    from sparself.evaluation import selfcheck
+    from sparself.evaluation.selfcheck import SelfCheckConfig, _Decision, _Scores
+
+    cfg = SelfCheckConfig(max_photo_loss=1.0)
+    without = [np.array([15.0, 16.0]), np.array([17.0, 18.0])]
+    scores = [_Scores(w, {}) for w in without]
+    folds = [selfcheck._Fold([1, 3], None, [0], [0], [], None, None, None) for _ in range(2)]  # type: ignore[arg-type]
+    keep = np.array([True])
+    # the first fold's view gains 3 dB where scored but costs another held-back photo 2 dB: dropped
+    spoiling = _Decision(keep, np.array([3.0]), np.array([18.0, 19.0]), worst=-2.0)
+    faint = _Decision(keep, np.array([0.05]), np.array([17.3, 17.8]), worst=-0.2)  # +0.3 and -0.2 dB
+    assert selfcheck._confirmed([spoiling, faint], scores, cfg) == ([spoiling, faint], False)  # clear together
+    decided, unclear = selfcheck._gated(folds, [spoiling, faint], scores, None, cfg)
+    assert unclear and not any(d.keep.any() for d in decided)
+    assert all(np.array_equal(d.chosen, w) for d, w in zip(decided, without))
+    steady = replace(faint, chosen=np.array([18.0, 19.1]))  # +1.0 and +1.1 dB stand on their own
+    decided, unclear = selfcheck._gated(folds, [spoiling, steady], scores, None, cfg)
+    assert not unclear and [d.keep.tolist() for d in decided] == [[False], [True]]
+
+
 def test_kept_together_a_fold_keeps_all_its_views_or_none_and_refits_no_subset(monkeypatch):
     from sparself.evaluation import selfcheck
 

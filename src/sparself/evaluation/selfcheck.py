@@ -22,7 +22,9 @@ poses it can be: the check measures with the error of its folds, whose gaps are 
   by a third fold that holds both ends back, through stand-ins: the same extrapolations made one input
   further in. A view no fold can measure is neither planned nor kept. The kept views must gain more than their
   spread over the held-back photos and, with ``seed_noise``, more than a second seed alone moves the fits
-  without views there (:func:`seed_change`; on a sparse capture that can be a dB or more).
+  without views there (:func:`seed_change`; on a sparse capture that can be a dB or more). With
+  ``max_photo_loss`` a fold's views are dropped when, with them, any of its held-back photos (scored or not)
+  loses more than that; the spread rule judges what this limit and the gap trend leave (:func:`_gated`).
   Independent fits run side by side (:mod:`sparself.recon.pool`).
 * **The gap's width** (``gap_trend``, off by default): a view's gain measured in a gap twice as wide as the
   final fit's is optimistic where the reconstruction renders well. A further fold holds back neighbouring
@@ -499,11 +501,8 @@ def self_check(
     weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in cfg.check_weights}
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
-    decided, unclear = _confirmed(_decide(small, planned, folds, scored, w, fits, cfg), scores, cfg)
     trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
-    if trend is not None and not trend.interior_kept:
-        decided = [d if f.past_ends else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
-    decided = _spared(folds, decided, scores, cfg)
+    decided, unclear = _gated(folds, _decide(small, planned, folds, scored, w, fits, cfg), scores, trend, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
@@ -512,6 +511,17 @@ def self_check(
         record = replace(record, gap_trend=trend, reason=record.reason + _trend_reason(trend))
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
     return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
+
+
+def _gated(
+    folds: list[_Fold], decided: list[_Decision], scores: list[_Scores], trend: GapTrend | None, cfg
+) -> tuple[list[_Decision], bool]:
+    """The folds' decisions after the gap trend (no interior view when it does not pay), the photo-loss limit
+    (:func:`_spared`) and, last, the spread rule (:func:`_confirmed`) on what the first two leave: a fold
+    dropped by a gate must not lend its gain to the views of another."""
+    if trend is not None and not trend.interior_kept:
+        decided = [d if f.past_ends else _dropped(d, s) for f, d, s in zip(folds, decided, scores)]
+    return _confirmed(_spared(folds, decided, scores, cfg), scores, cfg)
 
 
 def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[list[_Decision], bool]:
