@@ -236,12 +236,18 @@ def _halves_disagree_at(at: float, width: float):
 def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
     scene = _line(8)
     picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), _halves_disagree_at(0.42, 0.05), "other")
-    assert [f.index for f in picked] == [3.75, 4.25, 7.2]  # nearest x = 0.42 in gaps 3-4 and 4-5; the end
+    # the gaps that disagree most on average, 4-5 (the bump at x = 0.42 is a fifth of the way in) and 3-4,
+    # each at its midpoint, where a fit on both of its inputs is farthest from either; then the end
+    assert [f.index for f in picked] == [3.5, 4.5, 7.2]
     cands = candidate_poses(scene, PlanConfig(n_mid=2, n_extra=1))
     assert len(cands) == 7 * 3 + 2 * 2 and sum(c.beyond for c in cands) == 4
     assert {c.frame.index for c in cands if c.beyond} == {-0.2, -0.4, 7.2, 7.4}
     weak = np.array([1.0 if c.slot == 0 else 0.0 for c in cands])  # all of gap 0 weak: one view there only
-    assert [f.index for f in pick_poses(cands, weak, PlanConfig(n_mid=2, n_extra=0))] == [0.25, 1.25]
+    assert [f.index for f in pick_poses(cands, weak, PlanConfig(n_mid=2, n_extra=0))] == [0.5, 1.5]
+    # extrapolations alternate between the ends, the weaker first, further out at the second visit
+    start = np.array([1.0 if c.slot == -1 else 0.0 for c in cands])
+    assert [f.index for f in pick_poses(cands, start, PlanConfig(n_mid=0, n_extra=1))] == [-0.2]
+    assert [f.index for f in pick_poses(cands, start, PlanConfig(n_mid=0, n_extra=3))] == [-0.4, -0.2, 7.2]
 
 
 def test_views_between_the_neighbours_of_a_held_back_input_are_not_checkable():
@@ -337,10 +343,10 @@ def test_the_weak_plan_avoids_the_gaps_the_check_widens():
     scene = _line(12)
     fit = _halves_disagree_at(0.2, 0.15)  # at input 2
     picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), fit, "other")
-    assert [f.index for f in picked] == [1.75, 2.25]  # beside held-back input 2: measured by the second fold
+    assert [f.index for f in picked] == [1.5, 2.5]  # beside held-back input 2: measured by the second fold
     assert measuring_fold(scene, picked, "other").tolist() == [1, 1]
     five = _line(5)  # one fold only, holding back input 2: the gaps beside it cannot be measured
-    assert [f.index for f in weakest_plan(five, PlanConfig(n_mid=2, n_extra=0), fit, "other")] == [0.75, 3.25]
+    assert [f.index for f in weakest_plan(five, PlanConfig(n_mid=2, n_extra=0), fit, "other")] == [0.5, 3.5]
 
 
 def test_kept_views_whose_gain_is_within_its_spread_over_the_held_back_photos_are_not_written():
@@ -468,8 +474,11 @@ def test_with_the_gap_trend_no_view_between_the_inputs_is_kept_when_its_gain_ext
     sources.clear()
     rec = check(replace(plain, gap_trend=True))
     pairs = {scene.frames[i].name for i in trend_fold(14)}
-    # the gap-trend fold synthesizes its views and its held-back photos without them
-    assert any(made.isdisjoint(pairs) and pairs <= targets for made, targets in sources)
+    # the gap-trend fold synthesizes its views without its held-back photos, and (no fixer) not those photos
+    trend_calls = [targets for made, targets in sources if made.isdisjoint(pairs)]
+    assert len(trend_calls) == 1 and trend_calls[0].isdisjoint(pairs)
+    names = {f.name for f in scene.frames}
+    assert all(targets.isdisjoint(names - made) for made, targets in sources)  # no fixer: no held-back photo made
     assert rec.gap_trend == GapTrend(*extrapolated[0], -1.0, False)
     # no view between the inputs is kept; those past the ends keep the ends fold's decision
     assert not any(v.kept for v, p in zip(rec.views, past) if not p)

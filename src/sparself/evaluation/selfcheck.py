@@ -3,8 +3,10 @@ at held-back *input* photos, so a densified capture is never worse than the N ph
 poses it can be: the check measures with the error of its folds, whose gaps are twice the final fit's).
 
 * **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
-  other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); where they
-  disagree most, the reconstruction is weakest, and that is where views are planned.
+  other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); the gaps and
+  ends where they disagree most are where the reconstruction is weakest, and there views are planned, at
+  a gap's midpoint (:func:`~sparself.synthesis.plan.pick_poses`: inside a gap the halves' disagreement
+  follows how far a pose is from each half's inputs, not the final fit's weakness).
 * **Keep only what pays** (:func:`self_check`): in each fold of inputs held back together
   (:mod:`sparself.evaluation.folds`), the fold's views are synthesized again without those photos, and the
   reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
@@ -279,8 +281,9 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
 def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap) -> list[Frame]:
     """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
-    their renders), at the poses of :func:`sparself.synthesis.plan.candidate_poses` that are
-    measured by one of the self-check's folds (:func:`measuring_fold`) when there are any."""
+    their renders over the poses of :func:`sparself.synthesis.plan.candidate_poses` in the gap or past the
+    end that are measured by one of the self-check's folds (:func:`measuring_fold`), when there are any),
+    placed as :func:`sparself.synthesis.plan.pick_poses` says."""
     cands = candidate_poses(inputs, replace(plan, order="capture"))
     ok = measuring_fold(inputs, [c.frame for c in cands], gap) >= 0
     if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
@@ -291,7 +294,8 @@ def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap) -> li
     weak = np.abs(a - b).mean(axis=(1, 2, 3))
     picked = pick_poses(cands, weak, plan)
     log.info(
-        "plan: %d views where halves of the inputs disagree most (%.4f .. %.4f; candidates %.4f .. %.4f)",
+        "plan: %d views in the gaps and ends where halves of the inputs disagree most (at them %.4f .. %.4f; "
+        "candidates %.4f .. %.4f)",
         len(picked),
         min(weak[frames.index(f)] for f in picked),
         max(weak[frames.index(f)] for f in picked),
@@ -322,7 +326,7 @@ class _Fold:
     """One fold of the self-check: its held-back positions, the fit without them, the planned views it
     measures (positions into the plan) and the frames it fits for them (:func:`stand_ins`), those
     synthesized without the held-back photos (at the check size) with the renders of ``base`` there, and
-    the fixer's pairs at the held-back photos."""
+    the fixer's pairs at the held-back photos (None: no fixer is trained on them)."""
 
     held: list[int]
     base: Renderer
@@ -331,7 +335,7 @@ class _Fold:
     frames: list[Frame]
     synthesized: ValidationViews
     reference: np.ndarray  # (V, h, w, 3)
-    pairs: FixerPairs
+    pairs: FixerPairs | None
 
     @property
     def at_scored(self) -> list[int]:
@@ -344,12 +348,14 @@ class _Fold:
         return 0 in self.held
 
 
-def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, base) -> _Fold:
-    """The fold with ``base`` (the fit without ``held``): its views and its held-back photos synthesized from
-    the other inputs in one call (the photos become the fixer's pairs)."""
+def _fold(
+    inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, base, pairs: bool
+) -> _Fold:
+    """The fold with ``base`` (the fit without ``held``): its views and, with ``pairs``, its held-back photos
+    synthesized from the other inputs in one call (the photos become the fixer's pairs)."""
     _, train = validation_split(inputs, held)
     frames = stand_ins(small, [planned[i] for i in views])
-    images, conf = images_and_confidence(synth(train, frames + [inputs.frames[i] for i in held]))
+    images, conf = images_and_confidence(synth(train, frames + [inputs.frames[i] for i in held if pairs]))
     cam = small.cameras[frames[0].camera_id]
     size, v = (cam.width, cam.height), len(frames)
     made = ValidationViews(
@@ -357,20 +363,21 @@ def _fold(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], vi
         None if conf is None else resize_images(conf[:v], size),
         [f.name for f in train.frames],
     )
-    pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:])
+    made_pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:]) if pairs else None
     scored = measuring_photos(small, [planned[i] for i in views], held)
-    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), pairs)
+    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), made_pairs)
 
 
 def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
     """The fixer tested on every fold's pairs, each fold's by a fixer trained on the *other* folds' pairs
     (:func:`validated_fixer`; leave-one-out when there is one fold); where it is used, each fold's views are
     fixed by the fixer that scored it, so that no fold's check is scored on photos its fixer learnt from."""
-    if not cfg.fixer:
+    pairs = [f.pairs for f in folds if f.pairs is not None]  # every fold's, with the fixer on
+    if not cfg.fixer or len(pairs) < len(folds):
         return folds, None
-    starts = np.cumsum([0] + [len(f.pairs) for f in folds])
+    starts = np.cumsum([0] + [len(p) for p in pairs])
     groups = [list(range(a, b)) for a, b in zip(starts[:-1], starts[1:])] if len(folds) > 1 else None
-    fix = validated_fixer(FixerPairs.cat([f.pairs for f in folds]), FIXER_STEPS, cfg.check_seed, groups)
+    fix = validated_fixer(FixerPairs.cat(pairs), FIXER_STEPS, cfg.check_seed, groups)
     if fix.fixer is None:
         return folds, fix
     out = []
@@ -493,8 +500,9 @@ def self_check(
     every = held + [h for h, _ in wide]
     bases = fits([validation_split(small, h)[1] for h in every])
     others = None if other is None else other([validation_split(small, h)[1] for h in held])
-    made = [
-        _fold(inputs, small, planned, h, v, synth, b) for h, v, b in zip(every, views + [v for _, v in wide], bases)
+    made = [  # the gap-trend fold's views are not fixed: it needs no fixer pairs
+        _fold(inputs, small, planned, h, v, synth, b, cfg.fixer and k < len(held))
+        for k, (h, v, b) in enumerate(zip(every, views + [v for _, v in wide], bases))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
     scored = _scores(small, folds, fits, others, cfg)

@@ -153,19 +153,20 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
 
 
 # candidate poses for a plan that looks at the reconstruction first (``densify --plan weak``): the paper's
-# t values and a few more, so the weakest place in each gap can be chosen
+# t values and a few more, so each gap and end is judged on more than one pose
 CANDIDATE_T_MID = (0.25, 0.5, 0.75)
 CANDIDATE_T_EXTRA = (1.2, 1.4)
 
 
 @dataclass(frozen=True)
 class Candidate:
-    """A candidate novel pose and its slot: the gap of the path it lies in (0 .. N-2), or, for an
-    extrapolation (``beyond``), -1 before the first view and N-1 past the last."""
+    """A candidate novel pose, its slot: the gap of the path it lies in (0 .. N-2), or, for an
+    extrapolation (``beyond``), -1 before the first view and N-1 past the last; and its t along the pair."""
 
     frame: Frame
     slot: int
     beyond: bool = False
+    t: float = 0.5
 
 
 def candidate_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Candidate]:
@@ -181,34 +182,44 @@ def candidate_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Candida
     seq = plan_order(scene, cfg.order)
     idx = indices_along(scene, seq)
     out = [
-        Candidate(planned_frame(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], t), int(g))
+        Candidate(planned_frame(scene, seq[g], seq[g + 1], idx[g], idx[g + 1], t), int(g), t=t)
         for g in range(len(seq) - 1)
         for t in sorted({*CANDIDATE_T_MID, cfg.t_mid})
     ]
     if cfg.n_extra:
         for t in sorted({*CANDIDATE_T_EXTRA, cfg.t_extra}):
-            out.append(Candidate(planned_frame(scene, seq[-2], seq[-1], idx[-2], idx[-1], t), len(seq) - 1, True))
-            out.append(Candidate(planned_frame(scene, seq[1], seq[0], idx[1], idx[0], t), -1, True))
+            last = planned_frame(scene, seq[-2], seq[-1], idx[-2], idx[-1], t)
+            out.append(Candidate(last, len(seq) - 1, True, t))
+            out.append(Candidate(planned_frame(scene, seq[1], seq[0], idx[1], idx[0], t), -1, True, t))
     return out
 
 
 def pick_poses(candidates: list[Candidate], weakness: np.ndarray, cfg: PlanConfig) -> list[Frame]:
-    """The ``cfg.n_mid`` gaps and ``cfg.n_extra`` extrapolations where ``weakness`` (one number per candidate,
-    larger = the reconstruction is weaker there) is largest: in each chosen gap its weakest candidate (one per
-    gap, so the views spread); the extrapolations are the weakest of all beyond the ends. Sorted by index."""
-    order = np.argsort(-np.asarray(weakness, np.float64), kind="stable")
-    mids: list[Frame] = []
-    extras: list[Frame] = []
-    gaps: set[int] = set()
-    for k in order:
-        c = candidates[k]
-        if c.beyond:
-            if len(extras) < cfg.n_extra:
-                extras.append(c.frame)
-        elif c.slot not in gaps and len(mids) < cfg.n_mid:
-            gaps.add(c.slot)
-            mids.append(c.frame)
-    return sorted(mids + extras, key=lambda f: f.index)
+    """The ``cfg.n_mid`` gaps where ``weakness`` (one number per candidate, larger = the reconstruction is
+    weaker there), averaged over the gap's candidates, is largest, each with its candidate nearest
+    ``cfg.t_mid``; and ``cfg.n_extra`` extrapolations alternating between the ends, the weaker end first, at
+    the t values :func:`plan_poses` uses (nearest candidate). Sorted by index.
+
+    Weakness ranks gaps, not poses inside a gap: the halves that measure it each lack one of a gap's two
+    inputs, so inside a gap it mostly says how unevenly far a pose is from the halves' inputs, while a fit on
+    both inputs is farthest from either at the midpoint."""
+    weak = np.asarray(weakness, np.float64)
+    slots: dict[tuple[bool, int], list[int]] = {}
+    for k, c in enumerate(candidates):
+        slots.setdefault((c.beyond, c.slot), []).append(k)
+    ranked = sorted(slots, key=lambda s: -float(weak[slots[s]].mean()))  # stable: ties keep candidate order
+    gaps = [s for s in ranked if not s[0]][: int(cfg.n_mid)]
+    picked = [_nearest_t(candidates, slots[s], cfg.t_mid) for s in gaps]
+    ends = [s for s in ranked if s[0]]
+    for k in range(int(cfg.n_extra) if ends else 0):
+        left = [i for i in slots[ends[k % len(ends)]] if i not in picked]
+        if left:
+            picked.append(_nearest_t(candidates, left, 1.0 + (k // len(ends) + 1) * (cfg.t_extra - 1.0)))
+    return sorted((candidates[i].frame for i in picked), key=lambda f: f.index)
+
+
+def _nearest_t(candidates: list[Candidate], among: list[int], t: float) -> int:
+    return min(among, key=lambda i: abs(candidates[i].t - t))
 
 
 def plan_sequence(scene: Scene, cfg: PlanConfig | None = None) -> tuple[Scene, list[Frame]]:
