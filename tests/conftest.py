@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import pytest
 import torch
 
@@ -10,6 +12,12 @@ from sparself.synthesis.train import train
 from sparself.synthesis.train_config import TrainConfig
 
 torch.set_num_threads(1)  # the test machine's cores are shared; 1 thread is faster there
+
+# A suite started in the background by a non-interactive shell inherits SIGINT ignored, and so would every
+# command it starts: the tests that press Ctrl-C on a command would see it ignored. A Python handler here
+# is reset to the default in each child at exec, so Ctrl-C reaches them again.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def make_tiny_cfg(**kw) -> TrainConfig:
