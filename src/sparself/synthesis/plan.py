@@ -117,6 +117,15 @@ def planned_frame(scene: Scene, ia: int, ib: int, index_a: float, index_b: float
     return Frame(name=novel_name(index), pose=pose, camera_id=cam, index=index, path=None, synthetic=True)
 
 
+def extra_t(cfg: PlanConfig, visit: int) -> float:
+    """t of the ``visit``-th extrapolation (from 0) past one end: ``cfg.t_extra``, then further by the same step.
+
+    >>> extra_t(PlanConfig(), 0), round(extra_t(PlanConfig(), 1), 6)
+    (1.2, 1.4)
+    """
+    return 1.0 + (visit + 1) * (cfg.t_extra - 1.0)
+
+
 def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
     """Novel poses for ``scene``: midpoints between consecutive views and extrapolations past the ends.
 
@@ -143,7 +152,7 @@ def plan_poses(scene: Scene, cfg: PlanConfig | None = None) -> list[Frame]:
                 b.name,
             )
     for k in range(int(cfg.n_extra)):
-        t = 1.0 + (k // 2 + 1) * (cfg.t_extra - 1.0)
+        t = extra_t(cfg, k // 2)
         if k % 2 == 0:  # past the end: pair (N-2, N-1)
             out.append(planned_frame(scene, seq[-2], seq[-1], idx[-2], idx[-1], t))
         else:  # before the start: pair (1, 0)
@@ -214,7 +223,7 @@ def pick_poses(candidates: list[Candidate], weakness: np.ndarray, cfg: PlanConfi
     for k in range(int(cfg.n_extra) if ends else 0):
         left = [i for i in slots[ends[k % len(ends)]] if i not in picked]
         if left:
-            picked.append(_nearest_t(candidates, left, 1.0 + (k // len(ends) + 1) * (cfg.t_extra - 1.0)))
+            picked.append(_nearest_t(candidates, left, extra_t(cfg, k // len(ends))))
     return sorted((candidates[i].frame for i in picked), key=lambda f: f.index)
 
 
