@@ -327,17 +327,14 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
     assert calls[2][1] == ends | set(folds[2])  # the ends fold fits the stand-ins, not the views past the ends
 
 
-def test_a_view_past_an_end_is_stood_in_for_one_input_further_in_half_a_gap_short_of_the_end_photo():
+def test_a_view_past_an_end_is_stood_in_for_by_the_same_extrapolation_one_input_further_in():
     scene = _line(12)  # input i at x = 0.1 i
     planned = plan_poses(scene, PLAN)
     past = [f for f in planned if not 0 <= f.index <= 11]
     assert [f.index for f in past] == [-0.2, 11.2]
-    subs = stand_ins(scene, past)  # t = 1.2 from the next inputs would leave the end photo 0.8 gaps away
-    assert [f.index for f in subs] == pytest.approx([0.5, 10.5])
-    np.testing.assert_allclose([f.pose.center[0] for f in subs], [0.05, 1.05], atol=1e-9)
-    far = plan_poses(scene, replace(PLAN, t_extra=1.7))  # already nearer the end photo: its own t
-    assert [f.index for f in stand_ins(scene, [f for f in far if not 0 <= f.index <= 11])] == pytest.approx([0.3, 10.7])
-    assert [f.index for f in stand_ins(scene, past, offset=0.8)] == pytest.approx([0.8, 10.2])
+    subs = stand_ins(scene, past)
+    assert [f.index for f in subs] == pytest.approx([0.8, 10.2])
+    np.testing.assert_allclose([f.pose.center[0] for f in subs], [0.08, 1.02], atol=1e-9)
     inside = [f for f in planned if 0 <= f.index <= 11]
     assert stand_ins(scene, inside) == inside
 

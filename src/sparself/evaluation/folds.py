@@ -12,8 +12,7 @@ inputs.
 A view past an end input is judged by a fold of its own that holds both end photos back: no interior
 photo is beyond it, so no interior fold can measure it. That fold fits and scores a *stand-in* for it
 (:func:`stand_ins`): the same extrapolation made one input further in, which lands between the new end and
-the held-back one, moved out to half a gap short of that photo when it is farther (a view near an end serves
-the region past it, whose middle lies about half a gap from the view, not only its far edge).
+the held-back one.
 """
 
 from __future__ import annotations
@@ -26,10 +25,6 @@ from sparself.evaluation.weighting import validation_inputs
 from sparself.synthesis.plan import planned_frame
 
 ENDS_MIN = 6  # inputs a capture needs for the ends fold: two extrapolate each stand-in after both ends go
-# gaps from a stand-in to the end photo that scores it: a view a little past an end serves the region up to
-# about a gap beyond it, and its middle is half a gap from such a view (scored at the far edge, 0.8 gaps
-# from a view at t = 1.2, a view that helps most of that region was measured to gain nothing)
-END_OFFSET = 0.5
 TREND_EVERY = 6  # the gap-trend fold holds back a neighbouring pair of inputs every this many
 
 
@@ -106,11 +101,10 @@ def beyond(inputs: Scene, frames: list[Frame]) -> np.ndarray:
     return np.array([not min(lo, hi) <= f.index <= max(lo, hi) for f in frames], bool)
 
 
-def stand_ins(inputs: Scene, frames: list[Frame], offset: float = END_OFFSET) -> list[Frame]:
-    """``frames`` with each one past an end input replaced by an extrapolation from the two inputs next to
-    that end, at the view's own t or, where that is farther from the end photo, ``offset`` gaps short of it
-    (t = max(t, 2 - offset)): it lies between them and the end input, where a fold holding the end back can
-    score it; the others unchanged."""
+def stand_ins(inputs: Scene, frames: list[Frame]) -> list[Frame]:
+    """``frames`` with each one past an end input replaced by the same extrapolation (the same t) from the
+    two inputs next to that end, so that it lies between them and the end input, where a fold holding the
+    end back can score it; the others unchanged."""
     idx, n = [f.index for f in inputs.frames], len(inputs)
     out = []
     for f, past in zip(frames, beyond(inputs, frames)):
@@ -119,7 +113,7 @@ def stand_ins(inputs: Scene, frames: list[Frame], offset: float = END_OFFSET) ->
             continue
         a, b, end = (n - 3, n - 2, n - 1) if abs(f.index - idx[-1]) < abs(f.index - idx[0]) else (2, 1, 0)
         t = (f.index - idx[b]) / (idx[end] - idx[b])
-        out.append(planned_frame(inputs, a, b, idx[a], idx[b], max(t, 2.0 - offset)))
+        out.append(planned_frame(inputs, a, b, idx[a], idx[b], t))
     return out
 
 
