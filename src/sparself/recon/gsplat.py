@@ -3,6 +3,11 @@
 ``gsplat`` is imported only inside :func:`fit`; when the package or a CUDA device is missing a
 :class:`SparselfError` says so, instead of a silent fallback. Cameras follow COLMAP's conventions
 (world-to-camera matrices, pixel centres at +0.5), which is what ``gsplat.rasterization`` expects.
+
+By default the fit is the CPU path's (:func:`sparself.recon.splat.fit_gaussians`) with gsplat drawing each
+step (:func:`rasterizer`): the two render the same Gaussians to within float rounding, so the recipe tuned
+on the CPU carries over and a GPU only makes it faster. gsplat's own recipe (:class:`GsplatConfig`) stays
+selectable; on sparse captures it scored far below (19.8 against 26.7 dB from 25 llff_bird inputs).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from sparself.capture.scene import MIN_POINTS, Camera, Scene
 from sparself.core.errors import SparselfError
 from sparself.core.geometry import Pose
 from sparself.recon.common import ViewOrder, frustum_points, photometric_loss
+from sparself.recon.splat import EPS2D, NEAR_PLANE, Gaussians, Rasterizer, SplatConfig, fit_config, fit_gaussians
 
 log = logging.getLogger(__name__)
 
@@ -24,7 +30,8 @@ _NEEDS = "gsplat reconstructor needs CUDA and `pip install sparself[gsplat]`"
 
 @dataclass
 class GsplatConfig:
-    """Settings of :func:`fit` (a short schedule of the reference 3DGS recipe)."""
+    """The reference 3DGS recipe (what gsplat's own trainer runs, on a short schedule): :func:`fit` follows
+    it when given one of these; by default it follows :class:`~sparself.recon.splat.SplatConfig`."""
 
     steps: int = 7000
     init_points: int = 20000  # random points in the scene bounds when the scene has no sparse points
@@ -69,21 +76,59 @@ def available() -> tuple[bool, str]:
 
 
 class GsplatRenderer:
-    """Fitted Gaussians. ``render(pose, camera) -> (H, W, 3) float32 in [0, 1]``."""
+    """Fitted Gaussians on CUDA. ``render(pose, camera) -> (H, W, 3) float32 in [0, 1]``."""
 
     backend = "cuda: gsplat.rasterization"
 
-    def __init__(self, params, sh_degree: int, background):
-        self.params = params
+    def __init__(self, gaussians: Gaussians, sh_degree: int, background):
+        self.gaussians = gaussians
         self.sh_degree = sh_degree
         self.background = background
 
     def render(self, pose: Pose, camera: Camera) -> np.ndarray:
         gsplat, torch = _require_gsplat()
-        dev = self.params["means"].device
         with torch.no_grad():
-            img, _, _ = _rasterize(gsplat, torch, self.params, [pose], [camera], self.sh_degree, self.background, dev)
-        return img[0].clamp(0, 1).cpu().numpy().astype(np.float32)
+            img, _ = rasterizer(gsplat)(self.gaussians, pose, camera, self.background, self.sh_degree)
+        return img.clamp(0, 1).cpu().numpy().astype(np.float32)
+
+
+def rasterizer(gsplat) -> Rasterizer:
+    """The :data:`~sparself.recon.splat.Rasterizer` of ``gsplat.rasterization``, on the Gaussians' device:
+    the same image as the CPU path's (same 0.3 px^2 low-pass and near plane), and the screen-space gradients
+    of the Gaussians it found in the view (radius > 0)."""
+    import torch
+
+    def raster(g: Gaussians, pose: Pose, camera: Camera, background, sh_degree: int):
+        dev = g.means.device
+        renders, _, info = gsplat.rasterization(
+            means=g.means,
+            quats=g.quats,
+            scales=torch.exp(g.log_scales),
+            opacities=torch.sigmoid(g.opacity_logits),
+            colors=g.sh,
+            viewmats=torch.tensor(pose.w2c(), dtype=torch.float32, device=dev)[None],
+            Ks=torch.tensor(camera.K, dtype=torch.float32, device=dev)[None],
+            width=camera.width,
+            height=camera.height,
+            sh_degree=sh_degree,
+            backgrounds=background[None],
+            packed=False,
+            eps2d=EPS2D,
+            near_plane=NEAR_PLANE,
+        )
+        means2d, radii = info["means2d"], info["radii"]  # (1, N, 2); (1, N) or (1, N, 2) by version
+        if means2d.requires_grad:
+            means2d.retain_grad()
+
+        def screen():
+            if means2d.grad is None:
+                return None
+            ids = (radii.reshape(len(g), -1) > 0).any(-1).nonzero()[:, 0]
+            return ids, means2d.grad[0][ids]
+
+        return renders[0], screen
+
+    return raster
 
 
 def _rasterize(gsplat, torch, params, poses, cameras, sh_degree, background, dev):
@@ -120,12 +165,27 @@ def initial_points(scene: Scene, cfg: GsplatConfig, rng: np.random.Generator) ->
     return pts, np.full_like(pts, 0.5)
 
 
-def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> GsplatRenderer:
+def fit(scene: Scene, config: SplatConfig | GsplatConfig | None = None, **overrides) -> GsplatRenderer:
     """Fit 3D Gaussians to every frame of ``scene`` with gsplat on CUDA.
 
-    Raises SparselfError (before any work) when gsplat or CUDA is missing.
+    config: a :class:`~sparself.recon.splat.SplatConfig` (the default): the CPU path's recipe, with gsplat
+    drawing each step, so both paths fit the same way and a GPU only makes it faster; a
+    :class:`GsplatConfig`: the reference recipe (7000 steps, SH degree 3, gsplat's clone/split strategy).
+    Keyword overrides replace the config's fields. Raises SparselfError (before any work) when gsplat or
+    CUDA is missing.
     """
     gsplat, torch = _require_gsplat()
+    from sparself.recon.common import at_most_threads
+
+    if isinstance(config, GsplatConfig):
+        return _fit_reference(gsplat, torch, scene, config, overrides)
+    scene, cfg = fit_config(scene, config, overrides, "gsplat")
+    with at_most_threads(cfg.threads):
+        g, _ = fit_gaussians(scene, cfg, rasterizer(gsplat), torch.device("cuda"))
+    return GsplatRenderer(g, cfg.sh_degree, torch.tensor(cfg.background, dtype=torch.float32, device="cuda"))
+
+
+def _fit_reference(gsplat, torch, scene: Scene, config: GsplatConfig, overrides: dict) -> GsplatRenderer:
     from sparself.recon.common import prepare_fit, view_order
 
     scene, cfg = prepare_fit(scene, GsplatConfig, config, overrides, "gsplat")
@@ -178,7 +238,9 @@ def fit(scene: Scene, config: GsplatConfig | None = None, **overrides) -> Gsplat
         for g in optimizers["means"].param_groups:
             g["lr"] *= mean_decay
     log.info("gsplat: %d Gaussians after %d steps", len(params["means"]), cfg.steps)
-    return GsplatRenderer(params, cfg.sh_degree, background)
+    sh = torch.cat([params["sh0"], params["shN"]], 1)
+    fields = (params["means"], params["quats"], params["scales"], params["opacities"], sh)
+    return GsplatRenderer(Gaussians(*(t.detach() for t in fields)), cfg.sh_degree, background)
 
 
 def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
@@ -211,4 +273,4 @@ def _init_params(torch, scene: Scene, cfg: GsplatConfig, rng, dev):
     return params
 
 
-__all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit"]
+__all__ = ["GsplatConfig", "GsplatRenderer", "available", "fit", "rasterizer"]

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -432,8 +433,8 @@ def _grow(g: Gaussians, opt, grads: torch.Tensor, cfg: SplatConfig, extent: floa
         clone, split = hot & ~big, hot & big
         new = {k: torch.cat([getattr(g, k)[clone]] + [getattr(g, k)[split]] * 2) for k in _FIELDS}
         s = torch.exp(g.log_scales[split])
-        offs = (quat_to_rotmat(g.quats[split]) @ (s * torch.randn(s.shape, generator=gen))[..., None])[..., 0]
-        offs2 = (quat_to_rotmat(g.quats[split]) @ (s * torch.randn(s.shape, generator=gen))[..., None])[..., 0]
+        draws = [torch.randn(s.shape, generator=gen).to(s.device) for _ in range(2)]  # the CPU's stream anywhere
+        offs, offs2 = ((quat_to_rotmat(g.quats[split]) @ (s * d)[..., None])[..., 0] for d in draws)
         nc = int(clone.sum())
         new["means"][nc:] = torch.cat([g.means[split] + offs, g.means[split] + offs2])
         new["log_scales"][nc:] = torch.log(torch.cat([s, s]) / 1.6)
@@ -441,59 +442,95 @@ def _grow(g: Gaussians, opt, grads: torch.Tensor, cfg: SplatConfig, extent: floa
     return _replace(g, opt, keep, new)
 
 
+# (Gaussians, pose, camera, background (3,), SH degree) -> (the (H, W, 3) image, with gradients; a callable
+# that, after backward, gives the visible Gaussians' rows (M,) and their screen-space mean gradients (M, 2) px,
+# or None when the render had none): the one step where the CPU path and gsplat differ
+Rasterizer = Callable[
+    [Gaussians, Pose, Camera, torch.Tensor, int],
+    tuple[torch.Tensor, Callable[[], tuple[torch.Tensor, torch.Tensor] | None]],
+]
+
+
+def cpu_rasterizer(g: Gaussians, pose: Pose, camera: Camera, background: torch.Tensor, sh_degree: int):
+    """:data:`Rasterizer` of the plain-torch path (:func:`render_gaussians`)."""
+    img, p = render_gaussians(g, pose, camera, background, sh_degree)
+    p.means2d.retain_grad()
+    return img, lambda: None if p.means2d.grad is None else (p.ids, p.means2d.grad)
+
+
+def fit_config(scene: Scene, config: SplatConfig | None, overrides: dict, what: str) -> tuple[Scene, SplatConfig]:
+    """(scene, config) of a fit: :func:`~sparself.recon.common.prepare_fit`, and at least
+    ``min_steps_per_view`` steps per training view."""
+    from sparself.recon.common import prepare_fit
+
+    scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, what)
+    return scene, dataclasses.replace(cfg, steps=max(cfg.steps, cfg.min_steps_per_view * len(scene)))
+
+
 def fit(scene: Scene, config: SplatConfig | None = None, **overrides) -> SplatRenderer:
     """Fit Gaussians to every frame of ``scene`` on the CPU (images at the cameras' size).
 
     config: a :class:`SplatConfig`; keyword overrides replace its fields. Deterministic for ``config.seed``.
     """
-    from sparself.recon.common import at_most_threads, prepare_fit
+    from sparself.recon.common import at_most_threads
 
-    scene, cfg = prepare_fit(scene, SplatConfig, config, overrides, "3dgs")
-    cfg = dataclasses.replace(cfg, steps=max(cfg.steps, cfg.min_steps_per_view * len(scene)))
+    scene, cfg = fit_config(scene, config, overrides, "3dgs")
     with at_most_threads(cfg.threads):
-        return _fit(scene, cfg)
+        g, history = fit_gaussians(scene, cfg, cpu_rasterizer, torch.device("cpu"))
+    return SplatRenderer(g, cfg.sh_degree, torch.tensor(cfg.background, dtype=torch.float32), history)
 
 
-def _fit(scene: Scene, cfg: SplatConfig) -> SplatRenderer:
+def _on(g: Gaussians, device: torch.device) -> Gaussians:
+    return Gaussians(**{k: getattr(g, k).to(device) for k in _FIELDS})
+
+
+def fit_gaussians(
+    scene: Scene, cfg: SplatConfig, raster: Rasterizer, device: torch.device
+) -> tuple[Gaussians, list[float]]:
+    """The recipe of :class:`SplatConfig` with ``raster`` drawing each step's view on ``device``: the fitted
+    Gaussians (detached, on ``device``) and the training loss of each step. Every random draw is made on the
+    CPU, so a seed starts and grows the same Gaussians on any device."""
     from sparself.recon.common import photometric_loss, view_order
 
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     extent = float(scene.scale())
-    g = init_gaussians(scene, cfg, rng)
+    g = _on(init_gaussians(scene, cfg, rng), device)
     opt = _make_optimizer(g, cfg, extent)
-    images = [torch.from_numpy(scene.load(i)) for i in range(len(scene))]
-    weights = [None if w is None else torch.from_numpy(w) for w in map(scene.pixel_weight, range(len(scene)))]
-    bg = torch.tensor(cfg.background, dtype=torch.float32)
+    images = [torch.from_numpy(scene.load(i)).to(device) for i in range(len(scene))]
+    pixel_weights = map(scene.pixel_weight, range(len(scene)))
+    weights = [None if w is None else torch.from_numpy(w).to(device) for w in pixel_weights]
+    bg = torch.tensor(cfg.background, dtype=torch.float32, device=device)
     decay = 0.01 ** (1.0 / max(cfg.steps, 1))
-    acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
+    acc, cnt = torch.zeros(len(g), device=device), torch.zeros(len(g), device=device)
     d0, d1 = int(cfg.grow_from * cfg.steps), int(cfg.grow_until * cfg.steps)
     history: list[float] = []
     order = view_order(len(scene), cfg.steps, rng, cfg.view_order)
     for step, i in enumerate(tqdm(order, total=cfg.steps, desc="3dgs fit", disable=not cfg.progress, leave=False)):
         cam = scene.camera(i)
         deg = cfg.sh_degree if step >= cfg.sh_from * cfg.steps else 0
-        img, p = render_gaussians(g, scene.frames[i].pose, cam, bg, deg)
-        p.means2d.retain_grad()
+        img, screen = raster(g, scene.frames[i].pose, cam, bg, deg)
         loss = photometric_loss(img[None], images[i][None], cfg.ssim_lambda, weights[i])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         opt.param_groups[0]["lr"] *= decay  # means
         history.append(float(loss.detach()))
-        if step < d1 and p.means2d.grad is not None:
-            gr = p.means2d.grad * torch.tensor([cam.width / 2.0, cam.height / 2.0])  # pixels -> NDC
-            acc.index_add_(0, p.ids, gr.norm(dim=-1))
-            cnt.index_add_(0, p.ids, torch.ones(len(p.ids)))
+        seen = screen() if step < d1 else None
+        if seen is not None:
+            ids, gr = seen
+            gr = gr * torch.tensor([cam.width / 2.0, cam.height / 2.0], device=device)  # pixels -> NDC
+            acc.index_add_(0, ids, gr.norm(dim=-1))
+            cnt.index_add_(0, ids, torch.ones(len(ids), device=device))
         if d0 <= step < d1 and step > 0 and step % cfg.grow_every == 0:
             g = _grow(g, opt, acc / cnt.clamp_min(1), cfg, extent, gen)
-            acc, cnt = torch.zeros(len(g)), torch.zeros(len(g))
+            acc, cnt = torch.zeros(len(g), device=device), torch.zeros(len(g), device=device)
     log.info(
-        "3dgs (cpu): %d Gaussians after %d steps, final loss %.4f",
+        "3dgs (%s): %d Gaussians after %d steps, final loss %.4f",
+        device.type,
         len(g),
         cfg.steps,
         history[-1] if history else float("nan"),
     )
-    g = Gaussians(**{k: getattr(g, k).detach() for k in _FIELDS})
-    return SplatRenderer(g, cfg.sh_degree, bg, history)
+    return Gaussians(**{k: getattr(g, k).detach() for k in _FIELDS}), history
