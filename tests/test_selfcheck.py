@@ -319,12 +319,45 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
     planned = plan_poses(scene, PLAN)  # four midpoints and one view past each end
     checked = selfcheck.self_check(scene, planned, synth, _exact(scene, planned), MPI, "paper")
     folds = [[scene.frames[i].name for i in held] for held in check_folds(12, MPI.gain_gap)]
-    assert len(calls) == len(folds) == 3
+    # first the views between the inputs that the ends fold fits beside its own, then each fold's views
+    assert len(calls) == len(folds) + 1 == 4
+    context, calls = calls[0], calls[1:]
+    assert context == (calls[2][0], {f.name for f in planned if 0 <= f.index <= 11})
     assert all(sources.isdisjoint(fold) and set(fold) <= targets for (sources, targets), fold in zip(calls, folds))
     assert checked.record.validation == tuple(sum(folds, []))
     assert all(v.gain is not None for v in checked.record.views)  # the folds measure every gap and both ends
     ends = {f.name for f in stand_ins(scene, [f for f in planned if not 0 <= f.index <= 11])}
     assert calls[2][1] == ends | set(folds[2])  # the ends fold fits the stand-ins, not the views past the ends
+
+
+@pytest.mark.parametrize("context", [True, False])
+def test_the_ends_fold_fits_its_stand_ins_beside_the_views_between_the_inputs(context):
+    """The views past the ends act in a fit that also has the views between the inputs (the final fit
+    does): the ends fold fits those beside its stand-ins, in every one of its fits, the one without its
+    stand-ins included, at one weight; no other fold fits them beyond its own."""
+    from sparself.evaluation import selfcheck
+
+    scene = _line(12)
+    planned = plan_poses(scene, PLAN)
+    inner = {f.name for f in planned if 0 <= f.index <= 11}
+    cfg = replace(MPI, ends_context=context)
+    real, seen = selfcheck.check_fits(cfg), []
+
+    def fits(scenes):
+        seen.extend(scenes)
+        return real(scenes)
+
+    selfcheck.self_check(scene, planned, _exact, _exact(scene, planned), cfg, "paper", fits=fits)
+    ends = {scene.frames[0].name, scene.frames[11].name}
+    of_ends = [sc for sc in seen if ends.isdisjoint(f.name for f in sc.frames)]
+    others = [sc for sc in seen if not ends.isdisjoint(f.name for f in sc.frames)]
+    assert of_ends and others
+    assert any(not any(f.synthetic for f in sc.frames if f.name not in inner) for sc in of_ends)  # its base
+    for sc in of_ends:
+        weights = {f.name: f.weight for f in sc.frames if f.name in inner}
+        assert weights == ({n: max(cfg.check_weights) for n in inner} if context else {})
+    fold_views = [{f.name for f in sc.frames if f.synthetic} for sc in others]
+    assert all(v < inner or not v & inner for v in fold_views)  # an interior fold fits some of them, its own
 
 
 def test_a_view_past_an_end_is_stood_in_for_by_the_same_extrapolation_one_input_further_in():

@@ -64,6 +64,7 @@ from sparself.core.options import check_choices, option
 from sparself.evaluation.config import Gap, KeepRule, PixelWeights
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
 from sparself.evaluation.folds import (
+    beyond,
     check_folds,
     checkable,
     measuring_fold,
@@ -73,7 +74,7 @@ from sparself.evaluation.folds import (
     trend_fold,
     view_gains,
 )
-from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders
+from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders, with_images
 from sparself.evaluation.weighting import (
     ValidationViews,
     held_back_psnr,
@@ -151,6 +152,12 @@ class SelfCheckConfig:
         "dB: drop a fold's views when, fitted with those it keeps, any of its held-back photos loses more than this, "
         "near a view or not (a view can spoil a 3DGS fit far from its own gap; measured, this kept the 3DGS at or "
         "above N on every seed where nothing else did); inf: never",
+    )
+    ends_context: bool = option(
+        True,
+        "the fold that judges the views past the ends fits them beside the views between the inputs "
+        "(synthesized without the end photos, at the largest check weight), as the final fit has them; off: "
+        "beside the photos alone",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
@@ -322,6 +329,43 @@ def informative_confidence(
 
 
 @dataclass
+class _Context:
+    """Planned views a fold fits beside its own in every one of its fits (the fit without its views
+    included), synthesized without its held-back photos, at one loss weight."""
+
+    frames: list[Frame]
+    views: ValidationViews
+    weight: float
+
+
+def _with_context(scene: Scene, ctx: _Context | None) -> Scene:
+    """``scene`` + the context's views at the context's weight (its own frames' weights unchanged)."""
+    if ctx is None:
+        return scene
+    names = {f.name for f in ctx.frames}
+    sc = with_images(scene, ctx.frames, ctx.views.images, ctx.views.confidence)
+    ours = [replace(f, weight=ctx.weight) if f.synthetic and f.name in names else f for f in sc.frames]
+    return replace(sc, frames=ours)
+
+
+def _ends_context(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], synth, cfg) -> _Context | None:
+    """For the fold holding the ends back (``held``): the planned views between the inputs, synthesized from
+    the other inputs, with the network's confidence as pixel weights (not lowered where they agree with a
+    render: the fit without them is not made), none with uniform pixel weights (None when off, for another
+    fold, or when there is none)."""
+    inner = [f for f, past in zip(planned, beyond(small, planned)) if not past]
+    if not cfg.ends_context or 0 not in held or not inner:
+        return None
+    _, train = validation_split(inputs, held)
+    images, conf = images_and_confidence(synth(train, inner))
+    cam = small.cameras[inner[0].camera_id]
+    size = (cam.width, cam.height)
+    weights = None if conf is None or cfg.pixel_weights == "uniform" else resize_images(conf, size)
+    views = ValidationViews(resize_images(images, size), weights, [f.name for f in train.frames])
+    return _Context(inner, views, max(cfg.check_weights))
+
+
+@dataclass
 class _Fold:
     """One fold of the self-check: its held-back positions, the fit without them, the planned views it
     measures (positions into the plan) and the frames it fits for them (:func:`stand_ins`), those
@@ -336,6 +380,7 @@ class _Fold:
     synthesized: ValidationViews
     reference: np.ndarray  # (V, h, w, 3)
     pairs: FixerPairs | None
+    context: _Context | None = None  # views fitted beside its own in each of its fits (base included)
 
     @property
     def at_scored(self) -> list[int]:
@@ -349,7 +394,15 @@ class _Fold:
 
 
 def _fold(
-    inputs: Scene, small: Scene, planned: list[Frame], held: list[int], views: list[int], synth, base, pairs: bool
+    inputs: Scene,
+    small: Scene,
+    planned: list[Frame],
+    held: list[int],
+    views: list[int],
+    synth,
+    base,
+    pairs: bool,
+    context: _Context | None = None,
 ) -> _Fold:
     """The fold with ``base`` (the fit without ``held``): its views and, with ``pairs``, its held-back photos
     synthesized from the other inputs in one call (the photos become the fixer's pairs)."""
@@ -365,7 +418,7 @@ def _fold(
     )
     made_pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:]) if pairs else None
     scored = measuring_photos(small, [planned[i] for i in views], held)
-    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), made_pairs)
+    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), made_pairs, context)
 
 
 def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
@@ -411,7 +464,11 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
         )
         for f in folds
     ]
-    scenes = [sc for f, v in zip(folds, lowered) for sc in weight_scenes(small, f.frames, v, cfg.check_weights, f.held)]
+    scenes = [
+        _with_context(sc, f.context)
+        for f, v in zip(folds, lowered)
+        for sc in weight_scenes(small, f.frames, v, cfg.check_weights, f.held)
+    ]
     fitted = iter(fits(scenes))
     out = []
     for k, (f, v) in enumerate(zip(folds, lowered)):
@@ -449,7 +506,7 @@ def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: f
 def _kept_scene(small: Scene, fold: _Fold, views: ValidationViews, keep, w: float) -> Scene:
     idx = np.flatnonzero(keep)
     sub = ValidationViews(views.images[idx], None if views.confidence is None else views.confidence[idx], views.sources)
-    return weight_scenes(small, [fold.frames[i] for i in idx], sub, [w], fold.held)[0]
+    return _with_context(weight_scenes(small, [fold.frames[i] for i in idx], sub, [w], fold.held)[0], fold.context)
 
 
 def _settle(
@@ -498,11 +555,13 @@ def self_check(
     views = [[int(i) for i in np.flatnonzero(by == k)] for k in sorted(set(by[by >= 0]))]
     wide = _trend_fold(small, planned, cfg)  # fitted beside the folds, scored apart from them
     every = held + [h for h, _ in wide]
-    bases = fits([validation_split(small, h)[1] for h in every])
-    others = None if other is None else other([validation_split(small, h)[1] for h in held])
+    ctx = [_ends_context(inputs, small, planned, h, synth, cfg) for h in held] + [None] * len(wide)
+    without = [_with_context(validation_split(small, h)[1], c) for h, c in zip(every, ctx)]
+    bases = fits(without)
+    others = None if other is None else other(without[: len(held)])
     made = [  # the gap-trend fold's views are not fixed: it needs no fixer pairs
-        _fold(inputs, small, planned, h, v, synth, b, cfg.fixer and k < len(held))
-        for k, (h, v, b) in enumerate(zip(every, views + [v for _, v in wide], bases))
+        _fold(inputs, small, planned, h, v, synth, b, cfg.fixer and k < len(held), c)
+        for k, (h, v, b, c) in enumerate(zip(every, views + [v for _, v in wide], bases, ctx))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
     scored = _scores(small, folds, fits, others, cfg)
