@@ -317,7 +317,8 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
         return Synthesized(_exact(sc, targets), np.full((len(targets), 64, 96), 0.9, np.float32))
 
     planned = plan_poses(scene, PLAN)  # four midpoints and one view past each end
-    checked = selfcheck.self_check(scene, planned, synth, _exact(scene, planned), MPI, "paper")
+    cfg = replace(MPI, ends_context=True)
+    checked = selfcheck.self_check(scene, planned, synth, _exact(scene, planned), cfg, "paper")
     folds = [[scene.frames[i].name for i in held] for held in check_folds(12, MPI.gain_gap)]
     # first the views between the inputs that the ends fold fits beside its own, then each fold's views
     assert len(calls) == len(folds) + 1 == 4
@@ -330,17 +331,20 @@ def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
     assert calls[2][1] == ends | set(folds[2])  # the ends fold fits the stand-ins, not the views past the ends
 
 
-@pytest.mark.parametrize("context", [True, False])
+@pytest.mark.parametrize("context", [True, False, None])
 def test_the_ends_fold_fits_its_stand_ins_beside_the_views_between_the_inputs(context):
     """The views past the ends act in a fit that also has the views between the inputs (the final fit
     does): the ends fold fits those beside its stand-ins, in every one of its fits, the one without its
-    stand-ins included, at one weight; no other fold fits them beyond its own."""
+    stand-ins included, at one weight; no other fold fits them beyond its own. Auto (None): for the 3DGS,
+    not for the MPI."""
     from sparself.evaluation import selfcheck
 
     scene = _line(12)
     planned = plan_poses(scene, PLAN)
     inner = {f.name for f in planned if 0 <= f.index <= 11}
     cfg = replace(MPI, ends_context=context)
+    assert selfcheck.ends_context_on(replace(cfg, recon="3dgs")) == (context is not False)
+    context = selfcheck.ends_context_on(cfg)
     real, seen = selfcheck.check_fits(cfg), []
 
     def fits(scenes):

@@ -100,10 +100,10 @@ class EvalConfig:
         "dB a held-back photo of the checked row's self-check may lose before a fold's views go (densify "
         "--max-photo-loss)",
     )
-    check_ends_context: bool = option(
-        True,
+    check_ends_context: bool | None = option(
+        None,
         "the checked row's self-check judges the views past the ends beside the views between the inputs "
-        "(off: densify --no-ends-context)",
+        "(densify --ends-context; auto: for the 3DGS)",
     )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")

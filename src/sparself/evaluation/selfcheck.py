@@ -153,11 +153,12 @@ class SelfCheckConfig:
         "near a view or not (a view can spoil a 3DGS fit far from its own gap; measured, this kept the 3DGS at or "
         "above N on every seed where nothing else did); inf: never",
     )
-    ends_context: bool = option(
-        True,
+    ends_context: bool | None = option(
+        None,
         "the fold that judges the views past the ends fits them beside the views between the inputs "
-        "(synthesized without the end photos, at the largest check weight), as the final fit has them; off: "
-        "beside the photos alone",
+        "(synthesized without the end photos, at the largest check weight), as the final fit has them; no: "
+        "beside the photos alone; auto: yes for the 3DGS, no for the MPI (measured: it put a samples/bird seed "
+        "below N) and the NeRF (not measured)",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
     check_workers: int | None = option(
@@ -348,13 +349,19 @@ def _with_context(scene: Scene, ctx: _Context | None) -> Scene:
     return replace(sc, frames=ours)
 
 
+def ends_context_on(cfg: SelfCheckConfig) -> bool:
+    """Whether the ends fold fits its stand-ins beside the views between the inputs (``cfg.ends_context``;
+    auto: for the 3DGS only)."""
+    return cfg.ends_context if cfg.ends_context is not None else cfg.recon == "3dgs"
+
+
 def _ends_context(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], synth, cfg) -> _Context | None:
     """For the fold holding the ends back (``held``): the planned views between the inputs, synthesized from
     the other inputs, with the network's confidence as pixel weights (not lowered where they agree with a
     render: the fit without them is not made), none with uniform pixel weights (None when off, for another
     fold, or when there is none)."""
     inner = [f for f, past in zip(planned, beyond(small, planned)) if not past]
-    if not cfg.ends_context or 0 not in held or not inner:
+    if not ends_context_on(cfg) or 0 not in held or not inner:
         return None
     _, train = validation_split(inputs, held)
     images, conf = images_and_confidence(synth(train, inner))
