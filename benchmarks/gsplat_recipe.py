@@ -118,7 +118,6 @@ def run(job: Job) -> Fit:
     out = _psnr(r, full, split.eval)
     extra = [p for p, i in zip(out, split.eval) if split.group(i) == EXTRAPOLATED]
     inter = [p for p, i in zip(out, split.eval) if split.group(i) != EXTRAPOLATED]
-    n_g = len(getattr(r, "gaussians", []) or [])
     return Fit(
         job.capture,
         job.n,
@@ -128,7 +127,7 @@ def run(job: Job) -> Fit:
         float(np.mean(out)),
         float(np.mean(inter)),
         float(np.mean(extra)) if extra else None,
-        n_g,
+        len(r.gaussians),
         time.perf_counter() - t0,
     )
 

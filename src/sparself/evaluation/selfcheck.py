@@ -365,11 +365,17 @@ def _ends_context(inputs: Scene, small: Scene, planned: list[Frame], held: list[
         return None
     _, train = validation_split(inputs, held)
     images, conf = images_and_confidence(synth(train, inner))
-    cam = small.cameras[inner[0].camera_id]
-    size = (cam.width, cam.height)
-    weights = None if conf is None or cfg.pixel_weights == "uniform" else resize_images(conf, size)
-    views = ValidationViews(resize_images(images, size), weights, [f.name for f in train.frames])
+    views = _at_check_size(small, inner, images, None if cfg.pixel_weights == "uniform" else conf, train)
     return _Context(inner, views, max(cfg.check_weights))
+
+
+def _at_check_size(small: Scene, frames: list[Frame], images, conf, train: Scene) -> ValidationViews:
+    """Views synthesized from ``train`` at ``frames`` (and their confidence, or None), resized to the
+    check's cameras."""
+    cam = small.cameras[frames[0].camera_id]
+    size = (cam.width, cam.height)
+    resized = None if conf is None else resize_images(conf, size)
+    return ValidationViews(resize_images(images, size), resized, [f.name for f in train.frames])
 
 
 @dataclass
@@ -416,13 +422,8 @@ def _fold(
     _, train = validation_split(inputs, held)
     frames = stand_ins(small, [planned[i] for i in views])
     images, conf = images_and_confidence(synth(train, frames + [inputs.frames[i] for i in held if pairs]))
-    cam = small.cameras[frames[0].camera_id]
-    size, v = (cam.width, cam.height), len(frames)
-    made = ValidationViews(
-        resize_images(images[:v], size),
-        None if conf is None else resize_images(conf[:v], size),
-        [f.name for f in train.frames],
-    )
+    v = len(frames)
+    made = _at_check_size(small, frames, images[:v], None if conf is None else conf[:v], train)
     made_pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:]) if pairs else None
     scored = measuring_photos(small, [planned[i] for i in views], held)
     return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), made_pairs, context)
