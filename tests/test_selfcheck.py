@@ -599,3 +599,31 @@ def test_fits_of_photos_alone_are_made_once_per_capture_and_views_are_always_fit
     weighted = scene.subset([0, 1])
     weighted.frames[0] = replace(weighted.frames[0], weight=0.5)
     assert fits_once([weighted])[0] is not a[0] and calls == [3, 1, 1]
+
+
+@pytest.mark.parametrize("fixer", [True, False])
+def test_the_fit_on_every_input_is_fitted_once_beside_the_folds_fits_without_views(fixer):
+    """The fixer merges the written views with the render of the fit on every input: that fit runs in the
+    batch of the folds' fits without views (where an odd number of folds leaves a worker free), never
+    again, and is what the check hands on; without the fixer it is not fitted at all."""
+    from sparself.evaluation import selfcheck
+
+    scene = _line(12)
+    planned = plan_poses(scene, PLAN)
+    cfg = replace(MPI, fixer=fixer)
+    real, batches = selfcheck.check_fits(cfg), []
+
+    def fits(scenes):
+        batches.append([{f.name for f in sc.frames} for sc in scenes])
+        out = real(scenes)
+        batches[-1] = list(zip(batches[-1], out))
+        return out
+
+    checked = selfcheck.self_check(scene, planned, _exact, _exact(scene, planned), cfg, "paper", fits=fits)
+    every = {f.name for f in scene.frames}
+    whole = [(k, r) for k, batch in enumerate(batches) for names, r in batch if names == every]
+    folds = len(check_folds(12, MPI.gain_gap))
+    assert [len(b) for b in batches[:1]] == [folds + fixer]
+    assert [k for k, _ in whole] == ([0] if fixer else [])
+    if fixer and checked.fixer is not None:
+        assert checked.reference is whole[0][1]

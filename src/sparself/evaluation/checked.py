@@ -70,8 +70,8 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
 
 def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig, label: str, fits) -> ScoredSet | None:
     """The seed's network views at the held-out poses through the fixer, merged with the renders there of the
-    fit on every input at the check size (the one the written views were merged with; fitted here, once per
-    capture through ``fits``, when no view was kept). None: no fixer was used."""
+    fit on every input at the check size (the one the written views were merged with, handed on by the check;
+    fitted here through ``fits`` when it was not). None: no fixer was used."""
     if checked.fixer is None:
         return None
     reference = checked.reference or fits([at_check_size(ev.inputs, cfg)])[0]

@@ -565,7 +565,11 @@ def self_check(
     every = held + [h for h, _ in wide]
     ctx = [_ends_context(inputs, small, planned, h, synth, cfg) for h in held] + [None] * len(wide)
     without = [_with_context(validation_split(small, h)[1], c) for h, c in zip(every, ctx)]
-    bases = fits(without)
+    # the fit on every input, whose renders a fixer merges into the written views, rides with the bases: an odd
+    # number of folds leaves a worker free for it
+    ref = [small] if cfg.fixer else []
+    fitted = fits(without + ref)
+    bases, reference = fitted[: len(without)], (fitted[-1] if ref else None)
     others = None if other is None else other(without[: len(held)])
     made = [  # the gap-trend fold's views are not fixed: it needs no fixer pairs
         _fold(inputs, small, planned, h, v, synth, b, cfg.fixer and k < len(held), c)
@@ -585,7 +589,7 @@ def self_check(
     if trend is not None:
         record = replace(record, gap_trend=trend, reason=record.reason + _trend_reason(trend))
     (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
-    return _written(small, planned, final, keep, record, folds[0], fix, fits, cfg)
+    return _written(small, planned, final, keep, record, folds[0], fix, reference, cfg)
 
 
 def _gated(
@@ -709,14 +713,16 @@ def _record(
     )
 
 
-def _written(small, planned, final, keep, record, first: _Fold, fix: FixerFit | None, fits: FitMany, cfg) -> Checked:
-    """The kept views as written: fixed with the render of the fit on every input when the fixer is used,
-    their confidence lowered where they agree with the render of the first fold's fit."""
+def _written(
+    small, planned, final, keep, record, first: _Fold, fix: FixerFit | None, reference: Renderer | None, cfg
+) -> Checked:
+    """The kept views as written: fixed with the render of ``reference`` (the fit on every input) when the
+    fixer is used, their confidence lowered where they agree with the render of the first fold's fit."""
     images, conf = images_and_confidence(final)
     idx = np.flatnonzero(keep)
     fixer = None if fix is None else fix.fixer
-    reference = fits([small])[0] if fixer is not None and len(idx) else None
-    if fixer is not None and reference is not None:
+    reference = reference if fixer is not None else None
+    if fixer is not None and reference is not None and len(idx):
         images = fixed(fixer, images, renders(reference, small, planned), conf)
     exported = _exported(images, conf, renders(first.base, small, planned), record.weight or 1.0, cfg)
     return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer, reference)
