@@ -627,3 +627,21 @@ def test_the_fit_on_every_input_is_fitted_once_beside_the_folds_fits_without_vie
     assert [k for k, _ in whole] == ([0] if fixer else [])
     if fixer and checked.fixer is not None:
         assert checked.reference is whole[0][1]
+
+
+@pytest.mark.parametrize("recon, auto", [("nerf", "paper"), ("3dgs", "weak"), ("mpi", "weak")])
+def test_the_automatic_plan_is_the_papers_for_the_nerf_and_the_weak_one_otherwise(monkeypatch, recon, auto):
+    """A NeRF is given the paper's poses (views past both ends), the others views where their fits are weak;
+    a plan the user names is taken as named; the decision records the plan used."""
+    from sparself.evaluation import selfcheck
+
+    scene, seen = _line(12), []
+    paper = plan_poses(scene, PLAN)
+    weak = paper[1:3]
+    monkeypatch.setattr(selfcheck, "weakest_plan", lambda *a, **k: weak)
+    monkeypatch.setattr(selfcheck, "self_check", lambda inputs, targets, *a: seen.append((targets, a[-3])))
+    for mode, want in [("auto", auto), ("weak", "weak"), ("paper", "paper")]:
+        cfg = SelfCheckConfig(recon=recon, plan_mode=mode)
+        assert selfcheck.plan_of(cfg) == want
+        targets, _, _ = selfcheck.checked_views(scene, paper, PLAN, _exact, cfg, fits=lambda scenes: [])
+        assert targets == (paper if want == "paper" else weak) and seen[-1] == (targets, want)

@@ -153,11 +153,11 @@ def _views(
 ) -> tuple[list, Checked, dict[str, MadeFrom]]:
     """(the planned frames, the views to write, the photos that fed each view): all synthesized from the photos
     minus ``holdout`` (positions); every view of the paper's plan with ``check.recon`` none;
-    else planned where the reconstruction is weak (``check.plan_mode`` weak) and kept only where they pay
+    else planned as :func:`~sparself.evaluation.selfcheck.plan_of` says and kept only where they pay
     (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout)."""
     check = cfg.check
     if check.recon == "none":
-        if check.plan_mode != "paper":
+        if check.plan_mode == "weak":
             log.info("--recon none: the paper's plan (planning where a reconstruction is weak needs one)")
         syn = synthesize_with_confidence(run, scene.without(holdout), targets)
         return targets, Checked(targets, syn.images, syn.confidence, None), syn.sources_by_name(targets)

@@ -79,8 +79,10 @@ class EvalConfig:
         "'N + sparself, checked': each reconstructor also refitted on what `densify --recon R` writes for it "
         "(views planned where R is weak, fixed, and kept only where they raise R's PSNR on held-back inputs)",
     )
-    check_plan: Literal["weak", "paper"] = option(
-        "weak", "where the checked row's views go: where R is weak, or the paper's plan (the planned poses)"
+    check_plan: Literal["auto", "weak", "paper"] = option(
+        "auto",
+        "where the checked row's views go: where R is weak, or the paper's plan (the planned poses); auto: as "
+        "densify --plan auto (the paper's for the NeRF)",
     )
     check_gain_gap: Gap = option(
         "own",
