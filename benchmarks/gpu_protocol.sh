@@ -7,15 +7,7 @@
 # Without pycolmap on the device, give llff_bird as images/ + poses_bounds.npy (no sparse/).
 set -u
 DATA=$1 OUT=$2 LIMIT=${3:-520}
-t0=$(date +%s)
-left() { echo $((t0 + LIMIT - $(date +%s))); }
-W=$OUT/work
-mkdir -p "$W"
-export PYTHONPATH=$PWD/src:${PYTHONPATH:-} PYTHONUNBUFFERED=1 MAX_JOBS=16 TORCH_CUDA_ARCH_LIST=9.0
-python3 -c "import torch, gsplat; print('torch', torch.__version__, torch.cuda.get_device_name(), 'gsplat', gsplat.__version__)"
-# Built once here, so that the runs below do not all compile it at once.
-timeout "$(left)" python3 -c "from gsplat.cuda._backend import _C; assert _C is not None" > "$W/build.log" 2>&1
-echo "gsplat build rc=$? at $(($(date +%s) - t0)) s"
+source "$(dirname "$0")/gpu_start.sh"
 C="--quick --seeds 1 --no-weighted --densify-baselines flow --recon gsplat --device cuda -q"
 for spec in "b9 $DATA/llff_bird 9" "sb samples/bird 14" "b25 $DATA/llff_bird 25"; do
     read -r name scene n <<< "$spec"
