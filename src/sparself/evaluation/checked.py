@@ -1,10 +1,11 @@
 """'N + sparself, checked': the protocol's measure of what ``densify --recon R`` writes for reconstructor R.
 
-Per network seed, the views are planned where R is weak, fixed, and kept only where they raise R's PSNR on
-held-back *input* photos (:func:`sparself.evaluation.selfcheck.checked_views`, which never reads a held-out
-photo); R is then fitted on the inputs + the kept views at their exported confidence and scored on the
-held-out photos like every other row. When the self-check keeps nothing, the capture is the N photos alone
-and the row is the N-only fit. Where the fixer was used, its views at the held-out poses are scored too
+Per network seed, the views are planned for R (:func:`~sparself.evaluation.selfcheck.plan_of`), fixed, and
+kept only where they raise R's PSNR on held-back *input* photos
+(:func:`sparself.evaluation.selfcheck.checked_views`, which never reads a held-out photo); R is then fitted on
+the inputs + the kept views at their exported confidence and scored on the held-out photos like every other
+row. When the self-check keeps nothing, the capture is the N photos alone and the row is the N-only fit. Where
+the fixer was used, its views at the held-out poses are scored too
 (``sparself_fixed_views``): the fixer is meant to beat both the network's views and the N-only render.
 """
 

@@ -77,7 +77,8 @@ class EvalConfig:
     checked: bool = option(
         True,
         "'N + sparself, checked': each reconstructor also refitted on what `densify --recon R` writes for it "
-        "(views planned where R is weak, fixed, and kept only where they raise R's PSNR on held-back inputs)",
+        "(views planned as densify --plan auto plans them, fixed, and kept only where they raise R's PSNR on "
+        "held-back inputs)",
     )
     check_plan: Literal["auto", "weak", "paper"] = option(
         "auto",
