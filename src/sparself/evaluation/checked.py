@@ -24,7 +24,6 @@ from sparself.evaluation.selfcheck import (
     Checked,
     FitMany,
     SelfCheckConfig,
-    at_check_size,
     check_cameras,
     check_fits,
     check_settings,
@@ -69,15 +68,14 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
     )
 
 
-def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig, label: str, fits) -> ScoredSet | None:
+def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig, label: str) -> ScoredSet | None:
     """The seed's network views at the held-out poses through the fixer, merged with the renders there of the
-    fit on every input at the check size (the one the written views were merged with, handed on by the check;
-    fitted here through ``fits`` when it was not). None: no fixer was used."""
-    if checked.fixer is None:
+    check's fit on every input at the check size (the one its written views are merged with). None: no fixer
+    was used."""
+    if checked.fixer is None or checked.reference is None:
         return None
-    reference = checked.reference or fits([at_check_size(ev.inputs, cfg)])[0]
     imgs, conf = ev.net_targets[k]
-    out = fixed(checked.fixer, imgs, renders(reference, check_cameras(ev.full, cfg), ev.targets), conf)
+    out = fixed(checked.fixer, imgs, renders(checked.reference, check_cameras(ev.full, cfg), ev.targets), conf)
     return ev.score(out, label, ev.scored, seed=ev.cfg.first_seed + k)
 
 
@@ -109,7 +107,7 @@ def checked_fits(
             other = None if second is None else fits_for(second)  # the next seed's fits without views, once
             done.append(checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits, other=other)[1])
             label = f"{NETWORK_FIXED} ({rname}) seed {seed}"
-            fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, done[-1], cfg, label, fits))
+            fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, done[-1], cfg, label))
     kept = [k for k, c in enumerate(done) if c.frames]
     scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
     fitted = dict(zip(kept, fit_each(fit, scenes, [fit_seed(ev.cfg, seeds[k]) for k in kept])))

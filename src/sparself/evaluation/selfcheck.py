@@ -216,7 +216,7 @@ class Checked:
     confidence: np.ndarray | None
     record: SelfCheck | None  # None: not checked (recon none)
     fixer: Fixer | None = None  # the fixer the written views went through (None: not used)
-    reference: Renderer | None = None  # the fit on all inputs at the check size whose renders it merged in
+    reference: Renderer | None = None  # the fit on all inputs at the check size whose renders the fixer merges in
 
 
 FitMany = Callable[[list[Scene]], list[Renderer]]  # scenes -> one fitted renderer per scene, in order
