@@ -1,6 +1,7 @@
 # Sourced by the device scripts (gpu_gsplat.sh, gpu_protocol.sh) after they set DATA, OUT and LIMIT: a
 # deadline LIMIT seconds from now (`left` prints the seconds left), the work folder W under OUT, and gsplat's
 # CUDA code built once, before any run needs it.
+[ -n "$OUT" ] || { echo "$0: give an output folder (OUT)" >&2; exit 2; }  # W=$OUT/work is removed at the end
 t0=$(date +%s)
 left() { echo $((t0 + LIMIT - $(date +%s))); }
 W=$OUT/work
