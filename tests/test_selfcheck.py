@@ -3,6 +3,7 @@ its PSNR on held-back input photos, so a densified capture is never worse than i
 
 from __future__ import annotations
 
+import argparse
 import json
 from dataclasses import replace
 
@@ -26,7 +27,7 @@ from sparself.evaluation.folds import (
     view_gains,
     widened_gaps,
 )
-from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan
+from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan, weights_of
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
 from sparself.synthesis.synthesize import Synthesized
 
@@ -86,7 +87,7 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     # exact views far from a held-back photo may not raise the MPI there: a view is kept where it gains
     assert [f.name for f in dense.frames if f.synthetic] == list(rec.kept)
     assert rec.kept and {v.name for v in rec.views if v.gain > 0} <= set(rec.kept)
-    assert rec.weight in MPI.check_weights and rec.psnr_kept > rec.psnr_without
+    assert rec.weight in weights_of(MPI) and rec.psnr_kept > rec.psnr_without
     doc = json.loads((folder / "sparself.json").read_text())
     test = {f["source_name"] for f in doc["frames"] if f["name"] in doc["split"]["test"]}
     inputs = [f.name for f in _line().frames if f.name not in test]  # the test photos never reach the check
@@ -193,7 +194,7 @@ def test_uniform_pixel_weights_fit_and_write_every_pixel_of_a_view_alike():
 
     checked = selfcheck.self_check(scene, planned, synth, synth(scene, planned), cfg, "paper", fits)
     # the network's confidence (0.4) reaches neither the check's fits nor the written masks: only the weight
-    assert fitted and all(f.confidence is None and f.weight in cfg.check_weights for f in fitted)
+    assert fitted and all(f.confidence is None and f.weight in weights_of(cfg) for f in fitted)
     assert checked.frames and checked.confidence is not None
     assert np.array_equal(checked.confidence, np.full(checked.confidence.shape, checked.record.weight, np.float32))
 
@@ -359,7 +360,7 @@ def test_the_ends_fold_fits_its_stand_ins_beside_the_views_between_the_inputs(co
     assert any(not any(f.synthetic for f in sc.frames if f.name not in inner) for sc in of_ends)  # its base
     for sc in of_ends:
         weights = {f.name: f.weight for f in sc.frames if f.name in inner}
-        assert weights == ({n: max(cfg.check_weights) for n in inner} if context else {})
+        assert weights == ({n: max(weights_of(cfg)) for n in inner} if context else {})
     fold_views = [{f.name for f in sc.frames if f.synthetic} for sc in others]
     assert all(v < inner or not v & inner for v in fold_views)  # an interior fold fits some of them, its own
 
@@ -599,6 +600,20 @@ def test_fits_of_photos_alone_are_made_once_per_capture_and_views_are_always_fit
     weighted = scene.subset([0, 1])
     weighted.frames[0] = replace(weighted.frames[0], weight=0.5)
     assert fits_once([weighted])[0] is not a[0] and calls == [3, 1, 1]
+
+
+def test_the_automatic_weights_are_one_for_the_3dgs_and_two_otherwise_and_a_named_grid_is_followed():
+    from sparself.core.options import add_options, from_args
+
+    assert weights_of(SelfCheckConfig(recon="3dgs")) == (1.0,)
+    assert weights_of(SelfCheckConfig(recon="mpi")) == weights_of(SelfCheckConfig(recon="nerf")) == (0.5, 1.0)
+    assert weights_of(SelfCheckConfig(recon="3dgs", check_weights=(0.25, 1.0))) == (0.25, 1.0)
+    p = argparse.ArgumentParser()
+    add_options(p, SelfCheckConfig)
+    assert from_args(SelfCheckConfig, p.parse_args(["--check-weights", "auto"])).check_weights is None
+    assert from_args(SelfCheckConfig, p.parse_args(["--check-weights", "0.5,1"])).check_weights == (0.5, 1.0)
+    with pytest.raises(SystemExit):
+        p.parse_args(["--check-weights", "half"])
 
 
 @pytest.mark.parametrize("fixer", [True, False])

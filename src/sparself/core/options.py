@@ -46,6 +46,10 @@ _int_tuple = _number_tuple(int, "integers")
 _float_tuple = _number_tuple(float, "numbers")
 
 
+def _float_tuple_or_auto(text: str) -> tuple | None:
+    return None if text.strip() == "auto" else _float_tuple(text)
+
+
 def _str_tuple(text: str) -> tuple[str, ...]:
     return tuple(x.strip() for x in text.split(",") if x.strip())
 
@@ -92,7 +96,7 @@ def _type(kind: str):
     if kind.startswith("tuple[str"):
         return _str_tuple
     if kind.startswith("tuple[float"):
-        return _float_tuple
+        return _float_tuple_or_auto if kind.endswith("|None") else _float_tuple
     return {"int": int, "float": float, "int|None": int, "float|None": float, "bool|None": _auto_bool}.get(kind, str)
 
 
