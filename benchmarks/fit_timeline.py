@@ -13,6 +13,7 @@ synthesis, the fixer, scoring.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -41,14 +42,22 @@ def _timed(batches: list[Batch], t0: float):
     return run
 
 
+def _idle(b: Batch) -> float:
+    """Worker-seconds a batch leaves idle: n fits on w workers run in ceil(n / w) rounds (taken as equally long),
+    which have room for rounds * w fits."""
+    if not b.scenes:
+        return 0.0
+    rounds = math.ceil(len(b.scenes) / b.workers)
+    return b.seconds / rounds * (rounds * b.workers - len(b.scenes))
+
+
 def table(batches: list[Batch], total: float) -> str:
     rows = ["| start (s) | took (s) | workers | fits | scenes |", "|---|---|---|---|---|"]
     rows += [
         f"| {b.start:.1f} | {b.seconds:.1f} | {b.workers} | {len(b.scenes)} | {' '.join(b.scenes)} |" for b in batches
     ]
     fitting = sum(b.seconds for b in batches)
-    # a batch of n fits on w workers runs ceil(n / w) rounds; its last round leaves (w - n % w) workers idle
-    idle = sum(b.seconds / -(-len(b.scenes) // b.workers) * ((-len(b.scenes)) % b.workers) for b in batches if b.scenes)
+    idle = sum(_idle(b) for b in batches)
     rows += [
         "",
         f"{len(batches)} batches, {sum(len(b.scenes) for b in batches)} fits: {fitting:.0f} s of {total:.0f} s "
