@@ -365,3 +365,25 @@ def test_the_checked_row_runs_densifys_check_with_the_evaluations_choices():
     got = check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "3dgs", 2)
     assert (got.recon, got.plan_mode, got.gain_gap, got.check_steps, got.check_seed) == ("3dgs", "paper", "own", 123, 6)
     assert check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "nearest", 0) is None  # no check for it
+
+
+def test_the_seeds_3dgs_self_checks_run_in_turns_on_two_workers_decide_as_one_after_the_other(tmp_path, monkeypatch):
+    from sparself.evaluation import checked
+    from sparself.recon.pool import Fitter
+
+    hooks, _ = _hooks()
+    splat = dict(steps=0, min_steps_per_view=4, init_points=150, max_gaussians=300, progress=False, seed=0)
+    hooks["reconstructors"] = {"3dgs": Fitter("splat", splat)}
+    capture, cfg = _capture(tmp_path / "cap"), _tiny_cfg(check_steps=20, densify_baselines=(), weighted=False)
+    got = {}
+    for workers in (1, 2):
+        monkeypatch.setattr(checked, "check_workers", lambda cfg, w=workers: w)
+        rows = ev.evaluate([capture], tmp_path / f"out{workers}", cfg, **hooks).scenes[0].densification["3dgs"].rows
+        got[workers] = {
+            key: [(p.raw_mean("psnr"), repr(p.decision)) for p in row.per_seed]  # repr: a NaN equals itself
+            for key, row in rows.items()
+            if isinstance(row, SeededSets)
+        }
+    assert set(got[1]) >= {"base", "sparself", "oracle", "sparself_checked"}
+    assert all("SelfCheck(" in d for _, d in got[1]["sparself_checked"])
+    assert got[1] == got[2]

@@ -61,3 +61,51 @@ def test_the_self_check_runs_fits_side_by_side_only_for_the_one_core_cpu_3dgs():
     assert check_workers(SelfCheckConfig(recon="mpi", check_workers=3)) == 3
     assert 1 <= check_workers(SelfCheckConfig(recon="3dgs")) <= 4
     assert check_workers(SelfCheckConfig(recon="3dgs", check_steps=30)) == 1  # shorter than starting a worker
+
+
+def test_tasks_in_turns_share_the_workers_never_work_here_at_once_and_fit_what_they_fit_alone():
+    scenes = _scenes()
+    fitter = Fitter("splat", SPLAT)
+    alone = [fitter(sc) for sc in scenes]
+    events: list[str] = []
+    here = []  # tasks working in this process right now
+
+    def task(k: int, pool: FitPool):
+        def run():
+            here.append(k)
+            assert here == [k]  # holding the turn: no other task works here
+            events.append(f"start {k}")
+            here.remove(k)
+            (r,) = fitter.many([scenes[k]], pool)  # a lone fit: it goes to a worker, the turn to another task
+            here.append(k)
+            assert here == [k]
+            events.append(f"done {k}")
+            here.remove(k)
+            return r
+
+        return run
+
+    with FitPool(2) as pool:
+        got = pool.in_turns([task(k, pool) for k in range(3)])
+    assert events.index("start 1") < events.index("done 0")  # the second task's fit was given while the first's ran
+    for sc, r, q in zip(scenes, alone, got):
+        cam, pose = sc.cameras[1], sc.frames[1].pose
+        np.testing.assert_array_equal(r.render(pose, cam), q.render(pose, cam))
+    with FitPool(1) as one:  # one worker: the tasks run one after the other, here
+        events.clear()
+        one.in_turns([task(k, one) for k in range(2)])
+    assert events == ["start 0", "done 0", "start 1", "done 1"]
+
+
+def test_a_failing_task_in_turns_raises_and_the_pool_stops_the_others():
+    def failing():
+        raise ValueError("broken scene")
+
+    def slow(pool: FitPool):
+        return lambda: pool.run([("splat", _scenes()[0], {**SPLAT, "steps": 5000})])
+
+    t = time.time()
+    with pytest.raises(ValueError, match="broken scene"):
+        with FitPool(2) as pool:
+            pool.in_turns([failing, slow(pool)])
+    assert time.time() - t < 60  # the slow fit was not waited for

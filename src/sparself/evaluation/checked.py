@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from functools import partial
 from typing import Callable, Literal
 
 from sparself.capture.scene import Scene
@@ -93,7 +94,7 @@ def checked_fits(
     cfgs = [replace(first, check_seed=fit_seed(ev.cfg, s)) for s in seeds]
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
     sets, views = SeededSets(), SeededSets()
-    done, fixed_views = [], []
+    fixed_views: list[ScoredSet | None] = []
     with FitPool(check_workers(first)) as pool:
         memos: dict[tuple, FitMany] = {}  # the fits without views recur with every seed of the same fit seed
 
@@ -102,12 +103,16 @@ def checked_fits(
             memos[key] = memos.get(key) or remembering(check_fits(c, pool))
             return memos[key]
 
-        for seed, synth, cfg in zip(seeds, ev.net_synths, cfgs):
+        tasks = []
+        for synth, cfg in zip(ev.net_synths, cfgs):
             fits, second = fits_for(cfg), other_seed(cfg)
             other = None if second is None else fits_for(second)  # the next seed's fits without views, once
-            done.append(checked_views(ev.inputs, ev.planned, plan, synth, cfg, fits=fits, other=other)[1])
+            tasks.append(partial(checked_views, ev.inputs, ev.planned, plan, synth, cfg, fits=fits, other=other))
+        # the seeds' self-checks are independent: their fits share the workers
+        done = [views for _, views, _ in pool.in_turns(tasks)]
+        for seed, checked, cfg in zip(seeds, done, cfgs):
             label = f"{NETWORK_FIXED} ({rname}) seed {seed}"
-            fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, done[-1], cfg, label))
+            fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, checked, cfg, label))
     kept = [k for k, c in enumerate(done) if c.frames]
     scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
     fitted = dict(zip(kept, fit_each(fit, scenes, [fit_seed(ev.cfg, seeds[k]) for k in kept])))

@@ -8,14 +8,16 @@ import logging
 import multiprocessing
 import os
 import signal
-from concurrent.futures import Future, ProcessPoolExecutor
+import threading
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable, Sequence, TypeVar
 
 from sparself.capture.scene import Scene
 from sparself.recon import Renderer, backend, get_reconstructor
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
 def _ignore_interrupts() -> None:
@@ -40,6 +42,7 @@ class FitPool:
     def __init__(self, workers: int = 1) -> None:
         self.workers = max(1, int(workers))
         self._pool: ProcessPoolExecutor | None = None
+        self._turn: threading.Lock | None = None  # held by the in_turns thread working here, if any
 
     def __enter__(self) -> "FitPool":
         if self.workers > 1:
@@ -62,11 +65,44 @@ class FitPool:
         return self.run([(name, sc, cfg) for sc in scenes])
 
     def run(self, jobs: list[tuple[str, Scene, dict[str, Any]]]) -> list[Renderer]:
-        """Fit each (reconstructor, scene, settings); in order."""
-        if self._pool is None or len(jobs) < 2:
+        """Fit each (reconstructor, scene, settings); in order. Within :meth:`in_turns` even a lone fit goes to
+        a worker, and the calling thread gives up its turn until its fits are back."""
+        turn = self._turn
+        if self._pool is None or (len(jobs) < 2 and turn is None):
             return [_fit(*job) for job in jobs]
         futures: list[Future] = [self._pool.submit(_fit, *job) for job in jobs]
+        if turn is not None:
+            turn.release()
+            try:
+                wait(futures)
+            finally:
+                turn.acquire()
         return [f.result() for f in futures]
+
+    def in_turns(self, tasks: Sequence[Callable[[], T]]) -> list[T]:
+        """Each task's result, in order. With workers, the tasks run in threads that take turns at this
+        process's own work: a thread works only while it holds the turn and hands it on while it waits for its
+        fits, so the workers get fits from every task (no batch leaves a worker idle while another task has fits
+        to give) and no two tasks compute here at once. Fits are seeded, so the results are those of the tasks
+        run one after the other, which is what a pool of one worker does."""
+        if self._pool is None or len(tasks) < 2:
+            return [task() for task in tasks]
+        turn = self._turn = threading.Lock()
+
+        def taking_turns(task: Callable[[], T]) -> T:
+            with turn:
+                return task()
+
+        threads = ThreadPoolExecutor(len(tasks), thread_name_prefix="fit-turns")
+        try:
+            return [f.result() for f in [threads.submit(taking_turns, t) for t in tasks]]
+        except BaseException:
+            # the pool's exit stops the workers, which ends the waiting threads; do not wait for them here
+            threads.shutdown(wait=False, cancel_futures=True)
+            raise
+        finally:
+            threads.shutdown(wait=False)
+            self._turn = None
 
 
 MAX_WORKERS = 4  # fits at once at most: the protocol's and the self-check's batches hold up to 6
