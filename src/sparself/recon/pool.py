@@ -1,6 +1,8 @@
 """Several fits at once. The CPU 3DGS uses one core per fit, so on a machine with more cores independent fits
 run in worker processes, one per core; a pool of one worker fits in this process, one scene after the
-other (the plain path, and the reference the other must equal: each fit is seeded and single-threaded)."""
+other (the plain path, and the reference the other must equal: each fit is seeded and single-threaded).
+Independent tasks that each wait for fits in turn (the protocol's seeds' self-checks) share the workers through
+:meth:`FitPool.in_turns`, so that no task's lone fit leaves a worker idle."""
 
 from __future__ import annotations
 
