@@ -98,12 +98,9 @@ class FitPool:
         threads = ThreadPoolExecutor(len(tasks), thread_name_prefix="fit-turns")
         try:
             return [f.result() for f in [threads.submit(taking_turns, t) for t in tasks]]
-        except BaseException:
-            # the pool's exit stops the workers, which ends the waiting threads; do not wait for them here
-            threads.shutdown(wait=False, cancel_futures=True)
-            raise
         finally:
-            threads.shutdown(wait=False)
+            # after an error the pool's exit stops the workers, which ends the waiting threads: no wait here
+            threads.shutdown(wait=False, cancel_futures=True)
             self._turn = None
 
 
