@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -124,6 +125,41 @@ def _hooks():
         ),
     }
     return dict(network=network, reconstructors=recs), calls
+
+
+def _capture_of(folder: Path, n: int, monkeypatch) -> Scene:
+    monkeypatch.setattr(sys.modules[__name__], "N_FRAMES", n)
+    return _capture(folder)
+
+
+def test_the_report_notes_held_out_frames_that_lie_at_planned_views(tmp_path, monkeypatch):
+    # 9 frames, 5 inputs: the even frames are the inputs, the odd ones held out, and the paper's midpoints
+    # of the gaps planned (3 and 7 of them, at 2 of the 4 scored frames)
+    ev = protocol.start_scene(_capture_of(tmp_path / "nine", 9, monkeypatch), _tiny_cfg(), None)
+    assert (ev.split.inputs, ev.scored, [f.index for f in ev.planned][:2]) == ([0, 2, 4, 6, 8], [1, 3, 5, 7], [3, 7])
+    assert ev.at_views(ev.planned).tolist() == [False, True, False, True]
+    assert any(n.startswith("2 of 4 scored held-out frames lie at a planned view's pose") for n in ev.result.notes)
+    # 24 frames: every held-out frame is at least a frame from the planned poses (a quarter gap is under one)
+    dense = protocol.start_scene(_capture_of(tmp_path / "dense", 24, monkeypatch), _tiny_cfg(), None)
+    assert not dense.at_views(dense.planned).any()
+    assert not any("planned view's pose" in n for n in dense.result.notes)
+
+
+def test_the_checked_rows_note_gives_its_change_over_n_away_from_its_kept_views(tmp_path, monkeypatch):
+    from sparself.evaluation.checked import _at_kept_views
+    from sparself.evaluation.results import FrameScore
+
+    ev = protocol.start_scene(_capture_of(tmp_path / "nine", 9, monkeypatch), _tiny_cfg(), None)
+
+    def row(psnrs, seed):
+        return ScoredSet([FrameScore(f"f{i}", i, p, 0.5, None) for i, p in zip(ev.scored, psnrs)], seed=seed)
+
+    base = {0: row([20, 20, 20, 20], 0), 1: row([21, 21, 21, 21], 1)}
+    checked = [row([21, 25, 19.5, 26], 0), row([21, 21, 21, 21], 1)]  # seed 0 kept the views at frames 3 and 7
+    note = _at_kept_views(ev, "3dgs", [ev.planned[:2], []], checked, base)
+    assert note is not None and "per seed 2/4, 0/4" in note
+    assert "at the other scored frames +0.25 / +0.00 dB" in note  # seed 0: (+1 - 0.5) / 2 at frames 1 and 5
+    assert _at_kept_views(ev, "3dgs", [[], []], checked, base) is None
 
 
 def test_held_out_images_are_never_read_outside_scoring(tmp_path, monkeypatch):

@@ -9,6 +9,7 @@ from sparself.capture.scene import Camera
 from sparself.core.geometry import (
     Pose,
     align_similarity,
+    at_poses,
     fov_deg,
     interpolate_pose,
     plane_homography,
@@ -197,3 +198,26 @@ def test_align_similarity_recovers_known_transform():
     X = np.array([0.5, 0.2, 7.0])
     x1, x2 = p.R @ X + p.tvec, p2.R @ (s * R @ X + t) + p2.tvec
     assert np.allclose(x1[:2] / x1[2], x2[:2] / x2[2], atol=1e-9)
+
+
+def _at(x: float, turn_deg: float = 0.0) -> Pose:
+    """A camera at (x, 0, 0) turned ``turn_deg`` about the y axis."""
+    h = np.radians(turn_deg) / 2
+    return Pose.from_center(np.array([np.cos(h), 0.0, np.sin(h), 0.0]), np.array([x, 0.0, 0.0]))
+
+
+def test_at_poses_within_a_quarter_of_the_paths_step():
+    path = [_at(x) for x in (0, 2, 4, 6, 8)]  # steps of 2: a target is at a view within 0.5
+    targets = [_at(1.0), _at(3.0), _at(5.6), _at(7.0, turn_deg=10.0)]
+    views = [_at(1.0), _at(3.4), _at(5.0), _at(7.0)]
+    assert at_poses(targets, views, path).tolist() == [True, True, False, False]  # 0, 0.4, 0.6 off; 10 deg turned
+    assert at_poses(targets, views, path, within=0.35).tolist() == [True, True, True, False]  # within 0.7
+    assert at_poses(targets, views, path, within=0.15).tolist() == [True, False, False, False]  # within 0.3
+    assert not at_poses(targets, [], path).any()
+
+
+def test_at_poses_on_a_path_that_only_turns_is_judged_by_rotation():
+    path = [_at(0.0, turn_deg=a) for a in (0, 8, 16, 24)]  # a quarter of the 8-degree turn: 2 degrees
+    targets = [_at(0.0, turn_deg=4.0), _at(0.0, turn_deg=13.0)]
+    views = [_at(0.0, turn_deg=5.5), _at(0.0, turn_deg=10.0)]
+    assert at_poses(targets, views, path).tolist() == [True, False]  # 1.5 and 3 degrees from the nearest view

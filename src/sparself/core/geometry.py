@@ -312,3 +312,27 @@ def nearest_point_to_axes(centers: np.ndarray, axes: np.ndarray, max_cond: float
     if np.linalg.cond(A) >= max_cond:
         return None
     return np.linalg.solve(A, b)
+
+
+def at_poses(targets: list[Pose], views: list[Pose], path: list[Pose], within: float = 0.25) -> np.ndarray:
+    """Whether each of ``targets`` lies at the pose of one of ``views``: its camera centre within ``within`` x the
+    median step between consecutive ``path`` poses (a capture in order) of that view's, and its rotation within
+    ``within`` x the path's median turn (at least 1 degree) of that view's. (T,) bool; all False without views.
+
+    A path that only turns (zero median step) is judged by rotation alone, one that only moves by centre alone.
+    """
+    out = np.zeros(len(targets), dtype=bool)
+    if not views or not targets:
+        return out
+    c_path = np.array([p.center for p in path])
+    q_path = np.array([p.qvec for p in path])
+    step = float(np.median(np.linalg.norm(np.diff(c_path, axis=0), axis=1))) if len(path) > 1 else 0.0
+    turn = float(np.median(np.degrees(quat_angle(q_path[:-1], q_path[1:])))) if len(path) > 1 else 0.0
+    c_views, q_views = np.array([v.center for v in views]), np.array([v.qvec for v in views])
+    for k, t in enumerate(targets):
+        near = np.linalg.norm(c_views - t.center, axis=1) <= within * step
+        if step <= _EPS:
+            near = np.ones(len(views), dtype=bool)
+        near &= np.degrees(quat_angle(q_views, t.qvec[None])) <= max(within * turn, 1.0)
+        out[k] = bool(near.any())
+    return out

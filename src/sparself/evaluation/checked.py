@@ -16,7 +16,9 @@ from dataclasses import replace
 from functools import partial
 from typing import Callable, Literal
 
-from sparself.capture.scene import Scene
+import numpy as np
+
+from sparself.capture.scene import Frame, Scene
 from sparself.evaluation.fixing import fixed
 from sparself.evaluation.instruments import fit_each, fit_seed, renders, with_images
 from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
@@ -129,5 +131,30 @@ def checked_fits(
         if fx is not None:
             views.per_seed.append(fx)
     entry.rows[NETWORK_CHECKED] = sets
+    note = _at_kept_views(ev, rname, [c.frames for c in done], sets.per_seed, base)
+    if note:
+        ev.result.notes.append(note)
     if views.per_seed:
         entry.rows[NETWORK_FIXED] = views
+
+
+def _at_kept_views(
+    ev: SceneEval, rname: str, kept: list[list[Frame]], rows: list[ScoredSet], base: dict[int, ScoredSet]
+) -> str | None:
+    """A note when scored frames lie at a kept view's pose (:meth:`SceneEval.at_views`): how many per seed, and
+    the checked row's change over N at the other scored frames, which the views reach only through the
+    reconstruction ("–" where there are none). None when no seed kept a view at a scored frame."""
+    ats = [ev.at_views(frames) for frames in kept]
+    if not any(at.any() for at in ats):
+        return None
+    counts, elsewhere = [], []
+    for at, row in zip(ats, rows, strict=True):
+        counts.append(f"{int(at.sum())}/{len(at)}")
+        n_only = base[row.seed if row.seed is not None else ev.cfg.first_seed]
+        gains = [f.psnr - b.psnr for f, b, a in zip(row.frames, n_only.frames, at, strict=True) if not a]
+        elsewhere.append(f"{np.mean(gains):+.2f}" if gains else "–")
+    return (
+        f"{rname}, {NETWORK_CHECKED}: scored frames at a kept view's pose per seed {', '.join(counts)}; its change "
+        f"over N at the other scored frames {' / '.join(elsewhere)} dB (there the views act only through the "
+        "reconstruction)"
+    )

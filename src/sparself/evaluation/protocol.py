@@ -224,6 +224,13 @@ def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None, n_inputs: i
     mid_truth = {k: rec.truth for k, rec in enumerate(plan_info) if rec.truth is not None}
     ev = SceneEval(name, cfg, full, split, scored, inputs, planned, mid_truth, res, out_dir)
     res.split = protocol(ev, plan_info)
+    at = ev.at_views(planned)
+    if at.any():
+        res.notes.append(
+            f"{int(at.sum())} of {len(at)} scored held-out frames lie at a planned view's pose (within a quarter of "
+            "the inputs' spacing): there the rows with every view measure the views themselves as much as what "
+            "they add to the reconstruction at other poses"
+        )
     if out_dir is not None and cfg.examples > 0:
         ev.ex_dir = Path(out_dir) / "examples" / _safe(name)
         ev.ex_dir.mkdir(parents=True, exist_ok=True)

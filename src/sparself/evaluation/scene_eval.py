@@ -11,6 +11,7 @@ import numpy as np
 
 from sparself.capture.images import save_image
 from sparself.capture.scene import Frame, Scene
+from sparself.core.geometry import at_poses
 from sparself.evaluation.config import EvalConfig
 from sparself.evaluation.instruments import (
     SynthFn,
@@ -63,6 +64,12 @@ class SceneEval:
     @property
     def mid_targets(self) -> list[int]:
         return list(self.mid_truth.values())
+
+    def at_views(self, views: list[Frame]) -> np.ndarray:
+        """(scored,) bool: which scored held-out frames lie at the pose of one of ``views``
+        (:func:`~sparself.core.geometry.at_poses`, on the inputs' spacing). There a densified row measures the
+        views themselves more than what they add to the reconstruction at other poses."""
+        return at_poses([f.pose for f in self.targets], [f.pose for f in views], [f.pose for f in self.inputs.frames])
 
     def score(
         self,
