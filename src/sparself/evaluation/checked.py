@@ -21,7 +21,7 @@ import numpy as np
 from sparself.capture.scene import Frame, Scene
 from sparself.evaluation.fixing import fixed
 from sparself.evaluation.instruments import fit_each, fit_seed, renders, with_images
-from sparself.evaluation.results import NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
+from sparself.evaluation.results import AT_VIEWS, NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.selfcheck import (
     Checked,
@@ -154,7 +154,6 @@ def _at_kept_views(
         gains = [f.psnr - b.psnr for f, b, a in zip(row.frames, n_only.frames, at, strict=True) if not a]
         elsewhere.append(f"{np.mean(gains):+.2f}" if gains else "–")
     return (
-        f"{rname}, {NETWORK_CHECKED}: scored frames at a kept view's pose per seed {', '.join(counts)}; its change "
-        f"over N at the other scored frames {' / '.join(elsewhere)} dB (there the views act only through the "
-        "reconstruction)"
+        f"{AT_VIEWS}{rname}, {NETWORK_CHECKED}: scored frames at a kept view's pose per seed {', '.join(counts)}; "
+        f"its change over N at the other scored frames {' / '.join(elsewhere)} dB"
     )

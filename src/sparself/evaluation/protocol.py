@@ -71,6 +71,7 @@ from sparself.evaluation.instruments import (
 )
 from sparself.evaluation.report_context import safe_name as _safe
 from sparself.evaluation.results import (
+    AT_VIEWS,
     EXTRAPOLATED,
     INTERPOLATED,
     NETWORK,
@@ -227,9 +228,8 @@ def start_scene(scene: Scene, cfg: EvalConfig, out_dir: Path | None, n_inputs: i
     at = ev.at_views(planned)
     if at.any():
         res.notes.append(
-            f"{int(at.sum())} of {len(at)} scored held-out frames lie at a planned view's pose (within a quarter of "
-            "the inputs' spacing): there the rows with every view measure the views themselves as much as what "
-            "they add to the reconstruction at other poses"
+            f"{AT_VIEWS}{int(at.sum())} of {len(at)} scored held-out frames lie at a planned view's pose (within "
+            "a quarter of the inputs' spacing; the rows with every view)"
         )
     if out_dir is not None and cfg.examples > 0:
         ev.ex_dir = Path(out_dir) / "examples" / _safe(name)

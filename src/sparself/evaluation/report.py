@@ -30,6 +30,7 @@ from sparself.evaluation.report_context import (
     share_cell,
 )
 from sparself.evaluation.results import (
+    AT_VIEWS,
     BASE,
     NETWORK,
     NETWORK_CHECKED,
@@ -101,6 +102,14 @@ def _verdict_section(doc: Doc, c: Ctx) -> None:
     )
     sweep = is_sweep(c.ok)
     doc.ul([v.sentence(sweep) for v in found])
+    at_views = [f"{s.name}: {n[len(AT_VIEWS) :]}" for s in c.ok for n in s.notes if n.startswith(AT_VIEWS)]
+    if at_views:
+        doc.p(
+            "Where scored held-out frames lie at the synthesized views' own poses, a densified row there measures "
+            "the views themselves as much as what they add to the reconstruction; its change at the other frames "
+            "is the one that carries over to poses no view was planned at:"
+        )
+        doc.ul(at_views)
     for cap, panels in sweep_series(c.ok, c.recons).items():
         p = c.fig_dir / f"sweep_{safe_name(cap)}.png"
         try:
@@ -192,7 +201,7 @@ def _not_run_section(doc: Doc, c: Ctx) -> None:
     items = [f"{k}: {v}" for k, v in nr.items()]
     items.append(f"LPIPS: {c.settings.option('lpips_status', 'unavailable')}")
     for s in c.ok:
-        items += [f"{s.name}: {n}" for n in s.notes]
+        items += [f"{s.name}: {n}" for n in s.notes if not n.startswith(AT_VIEWS)]  # those go under the verdict
         for r, d in s.densification.items():
             if d.status == "failed":
                 items.append(f"{s.name} / {r}: failed: {d.error}")

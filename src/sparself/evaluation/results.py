@@ -30,6 +30,8 @@ NETWORK = "sparself"  # the CNN-LSTM's name in results and reports
 # its densification refit with per-pixel confidence and a synthetic-frame loss weight chosen on input views
 NETWORK_WEIGHTED = "sparself_weighted"
 NETWORK_CHECKED = "sparself_checked"  # what `densify --recon R` writes: planned where weak, fixed, kept if it pays
+# a scene note that qualifies its densified rows: scored frames at the synthesized views' own poses
+AT_VIEWS = "at the views' own poses: "
 NETWORK_FIXED = "fixer_views"  # the fixer's views at the held-out poses (a view-synthesis score, not a fit)
 BASE, ORACLE = "base", "oracle"  # a reconstructor's rows fitted on the N inputs alone / plus real photos
 METRICS = ("psnr", "ssim", "lpips")
