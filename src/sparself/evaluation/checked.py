@@ -154,6 +154,6 @@ def _at_kept_views(
         gains = [f.psnr - b.psnr for f, b, a in zip(row.frames, n_only.frames, at, strict=True) if not a]
         elsewhere.append(f"{np.mean(gains):+.2f}" if gains else "–")
     return (
-        f"{AT_VIEWS}{rname}, {NETWORK_CHECKED}: scored frames at a kept view's pose per seed {', '.join(counts)}; "
-        f"its change over N at the other scored frames {' / '.join(elsewhere)} dB"
+        f"{AT_VIEWS}{rname}, N + sparself checked (what densify writes): scored frames at a kept view's pose per "
+        f"seed {', '.join(counts)}; its change over N at the other scored frames {' / '.join(elsewhere)} dB"
     )
