@@ -40,8 +40,9 @@ demo: $(STAMP)
 	  --epochs $(DEMO_EPOCHS) --seed 0 --overwrite
 	$(VENV)/bin/sparself info $(DEMO_OUT)/scene
 	@echo "demo: dense scene in $(DEMO_OUT)/scene (COLMAP sparse/0, poses_bounds.npy, transforms.json),"
-	@echo "      the synthesized views the 3DGS self-check kept: $(DEMO_OUT)/scene/images/*novel_*, marked in sparself.json"
-	@echo "      (its 'selfcheck' entry says which views paid, by how much, and why the others were dropped);"
+	@echo "      the synthesized views the 3DGS self-check kept, if any paid: $(DEMO_OUT)/scene/images/*novel_*, marked in"
+	@echo "      sparself.json (its 'selfcheck' entry says which views paid, by how much, and why the others were dropped;"
+	@echo "      'info' above counts them: with none kept the scene is the photos alone);"
 	@echo "      plan and camera plot in $(DEMO_OUT)/"
 
 # held-out evaluation of the sample (minutes on a CPU with --quick; see README)
