@@ -106,6 +106,17 @@ def test_verdict_weighs_the_gain_against_the_spread_over_seeds_and_the_instrumen
     assert verdict(scenes[1:], "3dgs", 25).word == CANNOT_TELL
 
 
+def test_verdict_names_the_seeds_that_end_below_n():
+    base = SeededSets([_scored(20.0, 25, k) for k in range(3)])
+    net = SeededSets([_scored(p, 35, k) for k, p in enumerate((21.0, 19.5, 19.95))])  # +1, -0.5, -0.05
+    v = verdict([SceneResult("a", densification={"3dgs": ReconResult({"base": base, NETWORK: net})})], "3dgs", 25)
+    assert (v.seeds, v.below) == (3, [pytest.approx(-0.5)])  # -0.05 is within MIN_CHANGE_DB of N
+    assert "; below N on 1 of 3 capture seeds (worst -0.50 dB); 1 capture(s)." in v.sentence(sweep=False)
+    fine = SeededSets([_scored(20.5, 35, k) for k in range(3)])
+    even = verdict([SceneResult("a", densification={"3dgs": ReconResult({"base": base, NETWORK: fine})})], "3dgs", 25)
+    assert even.below == [] and "below N" not in even.sentence(sweep=False)
+
+
 def test_an_old_single_n_results_file_still_reports_without_a_sweep(tmp_path):
     scene = {
         "name": "toy",

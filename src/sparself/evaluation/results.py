@@ -259,14 +259,22 @@ def paired_change(row: Row | None, base: Row | None, metric: str = "psnr") -> tu
     (r, sd), (b, _) = mean_of(row, metric), mean_of(base, metric)
     if r is None or b is None:
         return None, None
-    if isinstance(row, SeededSets) and isinstance(base, SeededSets):
-        mine = {p.seed: p.raw_mean(metric) for p in row.per_seed}
-        theirs = {p.seed: p.raw_mean(metric) for p in base.per_seed}
-        if mine.keys() == theirs.keys() and None not in mine:
-            diffs = [mine[k] - theirs[k] for k in mine if math.isfinite(mine[k] - theirs[k])]
-            if diffs:
-                return float(np.mean(diffs)), (float(np.std(diffs)) if len(diffs) > 1 else None)
+    diffs = seed_changes(row, base, metric)
+    if diffs:
+        return float(np.mean(diffs)), (float(np.std(diffs)) if len(diffs) > 1 else None)
     return r - b, sd
+
+
+def seed_changes(row: Row | None, base: Row | None, metric: str = "psnr") -> list[float]:
+    """Each seed's ``row`` minus its ``base``, seed against seed (empty where the two do not hold the same
+    seeds, or either is not per seed)."""
+    if not (isinstance(row, SeededSets) and isinstance(base, SeededSets)):
+        return []
+    mine = {p.seed: p.raw_mean(metric) for p in row.per_seed}
+    theirs = {p.seed: p.raw_mean(metric) for p in base.per_seed}
+    if mine.keys() != theirs.keys() or None in mine:
+        return []
+    return [mine[k] - theirs[k] for k in mine if math.isfinite(mine[k] - theirs[k])]
 
 
 def is_network_row(name: str) -> bool:

@@ -21,6 +21,7 @@ from sparself.evaluation.results import (
     finite,
     mean_of,
     paired_change,
+    seed_changes,
     share_of_oracle_gain,
 )
 from sparself.evaluation.scene_results import SceneResult
@@ -78,6 +79,8 @@ class Verdict:
     failed: list[str] = field(default_factory=list)
     shared: int = 0  # captures whose oracle share is measurable (an oracle that gains >= 0.1 dB)
     checked: bool = False  # judged on what densify writes (the checked row), not on every planned view
+    seeds: int = 0  # capture seeds judged seed against seed
+    below: list[float] = field(default_factory=list)  # their changes below -MIN_CHANGE_DB: worse than N
 
     def sentence(self, sweep: bool) -> str:
         who = f"{self.recon} at N = {self.n}" if sweep and self.n else self.recon
@@ -92,8 +95,13 @@ class Verdict:
             on = f" on the {self.shared} capture(s) with one" if self.shared < self.captures else ""
             share = f"; {100 * self.share:.0f} % of the oracle's gain ({self.oracle_gain_db:+.2f} dB){on}"
         what = "N + sparself (checked: what densify writes)" if self.checked else "N + sparself"
+        below = (
+            f"; below N on {len(self.below)} of {self.seeds} capture seeds (worst {min(self.below):+.2f} dB)"
+            if self.below
+            else ""
+        )
         return (
-            f"{who}: {self.word}: {what} {self.change_db:+.2f} dB PSNR over N{spread}{share}; "
+            f"{who}: {self.word}: {what} {self.change_db:+.2f} dB PSNR over N{spread}{share}{below}; "
             f"{self.captures} capture(s){failed}."
         )
 
@@ -107,6 +115,7 @@ def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
     """The verdict on ``recon`` from the scenes (one N) that ran it: on the checked row (what ``densify --recon``
     writes) where they have it, else on N + every planned view."""
     changes, spreads, shares, gains, failed = [], [], [], [], []
+    per_seed: list[float] = []
     row = NETWORK_CHECKED if any(_summarised(s, recon, NETWORK_CHECKED) for s in scenes) else NETWORK
     for s in scenes:
         d = s.densification.get(recon, ReconResult())
@@ -120,6 +129,7 @@ def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
             continue
         changes.append(change)
         spreads.append(sd)
+        per_seed += seed_changes(d.row(row), d.row(BASE))
         oracle = mean_of(d.row(ORACLE), "psnr")[0]
         share = share_of_oracle_gain(base, net, oracle)
         shares.append(share)
@@ -128,7 +138,22 @@ def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
     word = decide(change, spread)
     shared = sum(x is not None for x in shares)
     share = _mean(shares)
-    return Verdict(recon, n, word, change, spread, share, _mean(gains), len(changes), failed, shared, row != NETWORK)
+    below = [c for c in per_seed if c < -MIN_CHANGE_DB]
+    return Verdict(
+        recon,
+        n,
+        word,
+        change,
+        spread,
+        share,
+        _mean(gains),
+        len(changes),
+        failed,
+        shared,
+        row != NETWORK,
+        len(per_seed),
+        below,
+    )
 
 
 def _summarised(s: SceneResult, recon: str, row: str) -> bool:
