@@ -138,7 +138,6 @@ def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
     word = decide(change, spread)
     shared = sum(x is not None for x in shares)
     share = _mean(shares)
-    below = [c for c in per_seed if c < -MIN_CHANGE_DB]
     return Verdict(
         recon,
         n,
@@ -150,9 +149,9 @@ def verdict(scenes: list[SceneResult], recon: str, n: int | None) -> Verdict:
         len(changes),
         failed,
         shared,
-        row != NETWORK,
-        len(per_seed),
-        below,
+        checked=row != NETWORK,
+        seeds=len(per_seed),
+        below=[c for c in per_seed if c < -MIN_CHANGE_DB],
     )
 
 
