@@ -106,3 +106,18 @@ def test_fmt_and_conclusions():
     text = " ".join(conclusions(_results("unavailable", None)))
     assert "mpi: N + sparself views beats N views on average by PSNR (+1.50 dB" in text
     assert "sparself (24.00 dB) beats the best baseline, blend (23.00 dB)" in text
+
+
+def test_notes_on_frames_at_the_views_poses_stand_under_the_verdict(tmp_path):
+    from sparself.evaluation.results import AT_VIEWS
+
+    results = _results("unavailable: weights not found", None)
+    toy = results.scenes[0]
+    assert isinstance(toy, SceneResult)
+    toy.notes = [AT_VIEWS + "1 of 1 scored held-out frames lie at a planned view's pose", "40 points triangulated"]
+    write_report(results, tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    verdict, rest = md.split("## Protocol", 1)
+    assert "- toy: 1 of 1 scored held-out frames lie at a planned view's pose" in verdict.splitlines()
+    assert "planned view's pose" not in rest  # said once, beside the verdict it qualifies
+    assert "- toy: 40 points triangulated" in rest.split("## Not run", 1)[1].splitlines()
