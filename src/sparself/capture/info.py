@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from sparself.capture.scene import Scene
-from sparself.core.geometry import quat_angle
+from sparself.core.geometry import path_steps
 
 # the names sparself gives synthesized views (sparself.synthesis.plan_files.novel_name, maybe behind a rank prefix)
 _NOVEL = re.compile(r"(^|_)novel_-?\d+\.\d\d\.png$")
@@ -65,16 +65,7 @@ def scene_info(scene: Scene) -> dict:
     src = depth_bounds_origin(scene)
     synth = synthesized_views(scene)
     near, far = scene.depth_bounds() if len(scene) else (float("nan"), float("nan"))
-    steps_d = np.linalg.norm(np.diff(centers, axis=0), axis=1) if len(scene) > 1 else np.zeros(0)
-    steps_r = (
-        np.degrees(
-            quat_angle(
-                np.stack([f.pose.qvec for f in scene.frames[:-1]]), np.stack([f.pose.qvec for f in scene.frames[1:]])
-            )
-        )
-        if len(scene) > 1
-        else np.zeros(0)
-    )
+    steps_d, steps_r = path_steps([f.pose for f in scene.frames])
     return {
         "source": str(scene.source) if scene.source is not None else None,
         "views": len(scene),

@@ -314,6 +314,15 @@ def nearest_point_to_axes(centers: np.ndarray, axes: np.ndarray, max_cond: float
     return np.linalg.solve(A, b)
 
 
+def path_steps(path: list[Pose]) -> tuple[np.ndarray, np.ndarray]:
+    """Between consecutive poses of ``path``: the distances of their camera centres and their rotations in
+    degrees, each (N - 1,); empty for fewer than two poses."""
+    if len(path) < 2:
+        return np.zeros(0), np.zeros(0)
+    centres, q = np.array([p.center for p in path]), np.stack([p.qvec for p in path])
+    return np.linalg.norm(np.diff(centres, axis=0), axis=1), np.degrees(quat_angle(q[:-1], q[1:]))
+
+
 def at_poses(targets: list[Pose], views: list[Pose], path: list[Pose], within: float = 0.25) -> np.ndarray:
     """Whether each of ``targets`` lies at the pose of one of ``views``: its camera centre within ``within`` x the
     median step between consecutive ``path`` poses (a capture in order) of that view's, and its rotation within
@@ -324,15 +333,13 @@ def at_poses(targets: list[Pose], views: list[Pose], path: list[Pose], within: f
     out = np.zeros(len(targets), dtype=bool)
     if not views or not targets:
         return out
-    c_path = np.array([p.center for p in path])
-    q_path = np.array([p.qvec for p in path])
-    step = float(np.median(np.linalg.norm(np.diff(c_path, axis=0), axis=1))) if len(path) > 1 else 0.0
-    turn = float(np.median(np.degrees(quat_angle(q_path[:-1], q_path[1:])))) if len(path) > 1 else 0.0
+    dists, turns = path_steps(path)
+    step = float(np.median(dists)) if len(dists) else 0.0
+    turn = float(np.median(turns)) if len(turns) else 0.0
     c_views, q_views = np.array([v.center for v in views]), np.array([v.qvec for v in views])
     for k, t in enumerate(targets):
-        near = np.linalg.norm(c_views - t.center, axis=1) <= within * step
-        if step <= _EPS:
-            near = np.ones(len(views), dtype=bool)
-        near &= np.degrees(quat_angle(q_views, t.qvec[None])) <= max(within * turn, 1.0)
+        near = np.degrees(quat_angle(q_views, t.qvec[None])) <= max(within * turn, 1.0)
+        if step > _EPS:
+            near &= np.linalg.norm(c_views - t.center, axis=1) <= within * step
         out[k] = bool(near.any())
     return out
