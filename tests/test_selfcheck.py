@@ -13,12 +13,13 @@ import pytest
 from planescene import plane_scene, render_plane, small_plane_scene
 from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
-from sparself.capture.io.dense import GapTrend, SelfCheck, ViewCheck, read_selfcheck
+from sparself.capture.io.dense import Confirmation, GapTrend, SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.geometry import Pose
 from sparself.evaluation.folds import (
     beyond,
     check_folds,
     checkable,
+    confirm_folds,
     measuring_fold,
     measuring_photos,
     one_wide_gain,
@@ -108,6 +109,24 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     masks = [back.confidence_map(i) for i in syn]
     assert all(m.max() <= 0.9 * rec.weight + 1 / 255 for m in masks)
     assert min(float(np.mean(m < 0.9 * rec.weight - 0.05)) for m in masks) > 0.1
+
+
+def test_confirmed_views_are_written_and_unconfirmed_ones_are_not(tmp_path, monkeypatch):
+    from sparself.evaluation import selfcheck
+
+    check = replace(MPI, confirm=True)
+    dense = _densify(tmp_path / "a", monkeypatch, _exact, check)
+    rec = read_selfcheck(tmp_path / "a" / "out" / "scene")
+    c = rec.confirmation
+    assert c is not None and c.confirmed and len(c.gains) == len(c.photos) > 1  # exact views lose nowhere
+    assert not set(c.photos) & set(rec.validation)  # tested on photos no fold held back
+    assert rec.kept and [f.name for f in dense.frames if f.synthetic] == list(rec.kept) and "confirmed" in rec.reason
+    failed = Confirmation(c.photos, (0.5,) + (-1.5,) * (len(c.photos) - 1), False)
+    monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: failed)
+    dense = _densify(tmp_path / "b", monkeypatch, _exact, check)
+    rec = read_selfcheck(tmp_path / "b" / "out" / "scene")
+    assert not any(f.synthetic for f in dense.frames) and rec.kept == () and rec.psnr_kept is None
+    assert rec.confirmation == failed and "not confirmed" in rec.reason and "without synthesized views" in rec.reason
 
 
 def test_recon_none_writes_every_view_of_the_paper_plan_without_any_fit(tmp_path, monkeypatch):
@@ -305,6 +324,66 @@ def test_own_gap_folds_hold_back_one_input_of_every_gap_and_never_two_neighbours
     scene = _line(n)
     mids = [replace(scene.frames[0], name=f"m{g}", index=g + 0.5) for g in range(n - 1)]
     assert (measuring_fold(scene, mids, "own") >= 0).all()
+
+
+@pytest.mark.parametrize("gap", ["own", "other"])
+@pytest.mark.parametrize("n", [3, 4, 5, 9, 10, 12, 25, 26])
+def test_the_confirmation_holds_back_every_interior_photo_the_folds_leave_and_never_two_neighbours(n, gap):
+    held = confirm_folds(n, gap)
+    used = {p for f in check_folds(n, gap) for p in f}
+    assert sorted(sum(held, [])) == [p for p in range(1, n - 1) if p not in used]
+    assert len(held) <= 2 and all(abs(a - b) > 1 for f in held for a in f for b in f if a != b)
+
+
+def _confirming(monkeypatch, psnr_with: dict[int, float], cfg: SelfCheckConfig):
+    """The kept views' confirmation on a 12-input line, every fit without views at 20 dB at every photo and
+    each with them at ``psnr_with`` (by photo position): (the confirmation, the photos each synthesis saw)."""
+    from sparself.evaluation import selfcheck
+
+    scene = _line(12)
+    small = selfcheck.at_check_size(scene, cfg)
+    planned = plan_poses(scene, PLAN)
+    seen: list[set[str]] = []
+
+    def synth(sc, targets):
+        seen.append({f.name for f in sc.frames})
+        cam = sc.cameras[targets[0].camera_id]
+        return np.zeros((len(targets), cam.height, cam.width, 3), np.float32)
+
+    def fits(scenes):
+        return ["with" if any(f.synthetic for f in sc.frames) else "base" for sc in scenes]
+
+    def psnr(small, fit, held):
+        return np.array([psnr_with.get(p, 20.0) if fit == "with" else 20.0 for p in held])
+
+    monkeypatch.setattr(selfcheck, "renders", lambda r, sc, frames: np.zeros((len(frames), 64, 96, 3), np.float32))
+    monkeypatch.setattr(selfcheck, "held_back_psnr", psnr)
+    keep = np.zeros(len(planned), bool)
+    keep[[0, 2]] = True
+    return selfcheck._confirmation(scene, small, planned, keep, 1.0, synth, fits, None, cfg), seen, scene
+
+
+def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from_them(monkeypatch):
+    cfg = SelfCheckConfig(pixel_weights="uniform", max_photo_loss=1.0, check_size=96)
+    held = confirm_folds(12, "own")  # [[2, 6], [4, 8]]
+    gains = {2: 20.5, 6: 20.5, 4: 19.6, 8: 20.3}  # +0.5, +0.5, -0.4, +0.3 dB
+    c, seen, scene = _confirming(monkeypatch, gains, cfg)
+    assert c.photos == tuple(scene.frames[p].name for p in sum(held, []))
+    assert c.gains == pytest.approx([0.5, 0.5, -0.4, 0.3]) and c.confirmed
+    assert len(seen) == 2 and all(not seen[k] & {scene.frames[p].name for p in h} for k, h in enumerate(held))
+    c, _, _ = _confirming(monkeypatch, {**gains, 8: 18.5}, cfg)  # one photo loses 1.5 dB: more than the limit
+    assert not c.confirmed and min(c.gains) == pytest.approx(-1.5)
+    c, _, _ = _confirming(monkeypatch, {**gains, 8: 18.5}, replace(cfg, max_photo_loss=None))  # mean -0.05 dB
+    assert not c.confirmed
+    c, _, _ = _confirming(monkeypatch, {**gains, 8: 19.5}, replace(cfg, max_photo_loss=None))  # mean +0.2 dB
+    assert c.confirmed
+
+
+def test_the_confirmation_runs_by_default_for_the_3dgs_only_and_as_asked_otherwise():
+    from sparself.evaluation.selfcheck import confirm_on
+
+    assert confirm_on(SelfCheckConfig(recon="3dgs")) and not confirm_on(SelfCheckConfig(recon="mpi"))
+    assert not confirm_on(SelfCheckConfig(recon="3dgs", confirm=False)) and confirm_on(replace(MPI, confirm=True))
 
 
 def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):
@@ -560,7 +639,12 @@ def test_the_self_check_record_round_trips_through_json():
     views = (ViewCheck("n", 1.5, 0.3, True), ViewCheck("m", 2.5, None, False))
     rec = SelfCheck("3dgs", "weak", ("a", "b"), 20.5, ((0.5, 21.0), (1.0, 20.0)), 21.5, 0.5, views, "r")
     assert SelfCheck.from_json(json.loads(json.dumps(rec.to_json()))) == rec
-    seeded = replace(rec, psnr_other_seed=19.75, gap_trend=GapTrend(1.25, 2.0, -0.03, False))
+    seeded = replace(
+        rec,
+        psnr_other_seed=19.75,
+        gap_trend=GapTrend(1.25, 2.0, -0.03, False),
+        confirmation=Confirmation(("c", "d"), (0.25, -1.5), False),
+    )
     assert SelfCheck.from_json(json.loads(json.dumps(seeded.to_json()))) == seeded
     assert rec.kept == ("n",)
 

@@ -66,6 +66,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         pixel_weights=ev.cfg.check_pixel_weights,
         keep=ev.cfg.check_keep,
         gap_trend=ev.cfg.check_gap_trend,
+        confirm=ev.cfg.check_confirm,
         max_photo_loss=ev.cfg.check_max_photo_loss,
         ends_context=ev.cfg.check_ends_context,
     )

@@ -98,6 +98,11 @@ class EvalConfig:
         "the checked row's self-check keeps views between the inputs only where their gain's trend with the "
         "gap's width says they pay in the final fit (densify --gap-trend)",
     )
+    check_confirm: bool | None = option(
+        None,
+        "the checked row's self-check tests its kept views on the input photos no fold held back before keeping "
+        "them (densify --confirm; auto: for the 3DGS)",
+    )
     check_max_photo_loss: float | None = option(
         1.0,
         "dB a held-back photo of the checked row's self-check may lose before a fold's views go (densify "

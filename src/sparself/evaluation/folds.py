@@ -59,6 +59,21 @@ def check_folds(n: int, gap: Gap) -> list[list[int]]:
     return [first] + [second] * bool(second) + ends
 
 
+def confirm_folds(n: int, gap: Gap) -> list[list[int]]:
+    """The interior photos among n inputs that the check's folds (:func:`check_folds` for ``gap``) never hold
+    back, alternating between two folds in path order, so that no fold holds back two neighbours: views
+    chosen on the check's folds are tested on photos they were not chosen on.
+
+    >>> confirm_folds(25, "own")
+    [[2, 6, 10, 14, 18, 22], [4, 8, 12, 16, 20]]
+    >>> confirm_folds(10, "own"), confirm_folds(9, "other"), confirm_folds(3, "own")
+    ([[2, 6], [4]], [[1, 5], [3, 6]], [])
+    """
+    used = {p for f in check_folds(n, gap) for p in f}
+    left = [p for p in range(1, n - 1) if p not in used]
+    return [f for f in (left[0::2], left[1::2]) if f]
+
+
 def trend_fold(n: int) -> list[int]:
     """The gap-trend fold: interior positions among n inputs held back in neighbouring pairs, every
     TREND_EVERY, so that each pair leaves a gap three inputs wide (the own-gap folds leave two); empty below 4.

@@ -102,6 +102,21 @@ class GapTrend:
 
 
 @dataclass(frozen=True)
+class Confirmation:
+    """The kept views tested together on the input photos the check's folds never hold back (``sparself.json``,
+    in ``selfcheck``): those photos, each photo's dB change from the fit without views to the fit with the kept
+    views (synthesized without the held-back photos), and whether that confirmed them."""
+
+    photos: tuple[str, ...]
+    gains: tuple[float, ...]
+    confirmed: bool
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "Confirmation":
+        return cls(tuple(map(str, doc["photos"])), tuple(map(float, doc["gains"])), bool(doc["confirmed"]))
+
+
+@dataclass(frozen=True)
 class SelfCheck:
     """The densify self-check's decision and the numbers it was made on (``sparself.json``, key ``selfcheck``).
 
@@ -112,7 +127,8 @@ class SelfCheck:
     chosen synthetic-frame weight (None: no view kept); views: every planned view; reason: the decision in
     words; fixer: the fixer's test (None: not tried); psnr_other_seed: the held-back photos' mean PSNR fitted
     without views at a second seed (None: not fitted), which bounds how much the fit's seed alone moves them;
-    gap_trend: the interior views' gain against the width of their gap (None: not measured)."""
+    gap_trend: the interior views' gain against the width of their gap (None: not measured); confirmation: the
+    kept views' test on photos no fold held back (None: not run)."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -128,6 +144,7 @@ class SelfCheck:
     fixer: FixerCheck | None = None
     psnr_other_seed: float | None = None
     gap_trend: GapTrend | None = None
+    confirmation: Confirmation | None = None
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -156,6 +173,7 @@ class SelfCheck:
             fixer=FixerCheck.from_json(doc["fixer"]) if doc.get("fixer") else None,
             psnr_other_seed=_opt_float(doc.get("psnr_other_seed")),
             gap_trend=GapTrend.from_json(doc["gap_trend"]) if doc.get("gap_trend") else None,
+            confirmation=Confirmation.from_json(doc["confirmation"]) if doc.get("confirmation") else None,
         )
 
 
