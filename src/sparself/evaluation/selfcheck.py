@@ -485,9 +485,19 @@ def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold],
     out = []
     for k, f in enumerate(folds):
         fx = fix.held_out[k] if groups is not None else fix.fixer
-        images = fixed(fx, f.synthesized.images, f.reference, f.synthesized.confidence)
-        out.append(replace(f, synthesized=replace(f.synthesized, images=images)))
+        out.append(replace(f, synthesized=_fixed_views(fx, f.synthesized, f.reference)))
     return out, fix
+
+
+def _fixed_views(fixer: Fixer, views: ValidationViews, reference: np.ndarray) -> ValidationViews:
+    """``views`` fixed by ``fixer`` with the renders at their poses (``reference``: (V, h, w, 3))."""
+    return replace(views, images=fixed(fixer, views.images, reference, views.confidence))
+
+
+def _lowered(views: ValidationViews, reference: np.ndarray, cfg) -> ValidationViews:
+    """``views`` with their confidence lowered where they agree with the renders at their poses
+    (``reference``: (V, h, w, 3); :func:`_fitted_confidence`), as every fit of the check uses them."""
+    return replace(views, confidence=_fitted_confidence(views.images, views.confidence, reference, cfg))
 
 
 @dataclass
@@ -506,13 +516,7 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     """Each fold's views with their confidence lowered where they agree with its render, and every fold's fits
     with its views at each weight, all fitted at once: [(scores, lowered views)] per fold (``others``: each
     fold's fit without views at the second seed, or None)."""
-    lowered = [
-        replace(
-            f.synthesized,
-            confidence=_fitted_confidence(f.synthesized.images, f.synthesized.confidence, f.reference, cfg),
-        )
-        for f in folds
-    ]
+    lowered = [_lowered(f.synthesized, f.reference, cfg) for f in folds]
     scenes = [
         _with_context(sc, f.context)
         for f, v in zip(folds, lowered)
@@ -659,9 +663,8 @@ def _confirmation(
         images, conf = images_and_confidence(synth(train, frames))
         views, reference = _at_check_size(small, frames, images, conf, train), renders(base, small, frames)
         if fixer is not None:
-            views = replace(views, images=fixed(fixer, views.images, reference, views.confidence))
-        views = replace(views, confidence=_fitted_confidence(views.images, views.confidence, reference, cfg))
-        scenes.append(weight_scenes(small, frames, views, [w], held)[0])
+            views = _fixed_views(fixer, views, reference)
+        scenes.append(weight_scenes(small, frames, _lowered(views, reference, cfg), [w], held)[0])
     changes = [held_back_psnr(small, r, h) - held_back_psnr(small, b, h) for h, b, r in zip(helds, bases, fits(scenes))]
     gains = np.concatenate(changes)
     safe = cfg.max_photo_loss is None or gains.min() >= -cfg.max_photo_loss
