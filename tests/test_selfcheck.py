@@ -218,6 +218,50 @@ def test_uniform_pixel_weights_fit_and_write_every_pixel_of_a_view_alike():
     assert np.array_equal(checked.confidence, np.full(checked.confidence.shape, checked.record.weight, np.float32))
 
 
+def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_held_back_photos(monkeypatch):
+    from sparself.evaluation import selfcheck
+    from sparself.evaluation.weighting import ValidationViews
+
+    views = ValidationViews(np.zeros((1, 2, 2, 3), np.float32), np.ones((1, 2, 2), np.float32), [])
+    fold = selfcheck._Fold([1, 5], "base", [0], [1], [], views, None, None)  # type: ignore[arg-type]
+    monkeypatch.setattr(selfcheck, "informative_confidence", lambda img, conf, ref, cfg: np.ones(img.shape[:3]))
+    # a fit's name says how its views were weighted: the scenes stand for themselves
+    monkeypatch.setattr(
+        selfcheck,
+        "weight_scenes",
+        lambda small, frames, v, weights, held: [
+            ("uniform" if v.confidence is None else "confidence", w) for w in weights
+        ],
+    )
+    cfg = SelfCheckConfig(pixel_weights="auto", check_weights=(0.5, 1.0))
+
+    def settle(psnr, c=cfg):
+        monkeypatch.setattr(
+            selfcheck, "held_back_psnr", lambda small, r, held: np.asarray(psnr[r])[[[1, 5].index(h) for h in held]]
+        )
+        fitted: list = []
+        return selfcheck._pixel_weighted(None, [fold], lambda scenes: fitted.extend(scenes) or scenes, None, c), fitted
+
+    psnr = {
+        "base": [20.0, 20.0],
+        ("confidence", 0.5): [21.0, 0.0],
+        ("confidence", 1.0): [20.5, 0.0],
+        ("uniform", 0.5): [20.0, 0.0],
+        ("uniform", 1.0): [21.5, 0.0],
+    }
+    ([(scores, lowered)], tried, chosen), fitted = settle(psnr)
+    # every fit of both ways in one call; each way judged at its best weight, at the scored photo only
+    assert sorted(fitted) == sorted(k for k in psnr if k != "base")
+    assert tried == (("confidence", 21.0), ("uniform", 21.5)) and chosen.pixel_weights == "uniform"
+    assert lowered.confidence is None and scores.by_weight == {0.5: [20.0], 1.0: [21.5]}
+    psnr[("uniform", 1.0)] = [21.0, 0.0]  # a tie keeps the network's confidence
+    ([(scores, lowered)], tried, chosen), _ = settle(psnr)
+    assert chosen.pixel_weights == "confidence" and lowered.confidence is not None and scores.by_weight[0.5] == [21.0]
+    # asked for one way, the check fits only that one and records no choice
+    (_, tried, chosen), fitted = settle(psnr, replace(cfg, pixel_weights="uniform"))
+    assert tried == () and chosen.pixel_weights == "uniform" and {k for k, _ in fitted} == {"uniform"}
+
+
 def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():
     scene = _line(12)  # held back: positions 2 and 7
     frames = [replace(scene.frames[0], name=f"v{k}", index=x) for k, x in enumerate((1.5, 4.5, 6.0, 9.5))]
@@ -644,6 +688,8 @@ def test_the_self_check_record_round_trips_through_json():
         psnr_other_seed=19.75,
         gap_trend=GapTrend(1.25, 2.0, -0.03, False),
         confirmation=Confirmation(("c", "d"), (0.25, -1.5), False),
+        pixel_weights="uniform",
+        psnr_by_pixel_weights=(("confidence", 21.25), ("uniform", 21.5)),
     )
     assert SelfCheck.from_json(json.loads(json.dumps(seeded.to_json()))) == seeded
     assert rec.kept == ("n",)

@@ -14,7 +14,7 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 
 PlannedSection = Literal["midpoints", "extrapolations"]
 Gap = Literal["other", "own"]  # where the self-check measures a view's gain (evaluation.folds)
-PixelWeights = Literal["confidence", "uniform"]  # per-pixel weights of the self-check's views
+PixelWeights = Literal["auto", "confidence", "uniform"]  # per-pixel weights of the self-check's views
 KeepRule = Literal["each", "together"]  # which views a self-check fold keeps
 # results of the planned views that have a real photo
 PLANNED_SECTIONS: tuple[PlannedSection, ...] = ("midpoints", "extrapolations")

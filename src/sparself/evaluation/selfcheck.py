@@ -142,7 +142,8 @@ class SelfCheckConfig:
         "confidence",
         "per-pixel loss weights of the views in the check's fits and in the written masks: the network's "
         "confidence, lowered where a view agrees with the render (confidence), or the synthetic-frame weight "
-        "on every pixel (uniform: what a trainer that ignores masks, such as gsplat's, fits)",
+        "on every pixel (uniform: what a trainer that ignores masks, such as gsplat's, fits); auto: the folds fit "
+        "the views both ways and the one that renders their held-back photos better is used",
     )
     keep: KeepRule = option(
         "each",
@@ -516,21 +517,61 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     """Each fold's views with their confidence lowered where they agree with its render, and every fold's fits
     with its views at each weight, all fitted at once: [(scores, lowered views)] per fold (``others``: each
     fold's fit without views at the second seed, or None)."""
-    lowered = [_lowered(f.synthesized, f.reference, cfg) for f in folds]
+    return _scores_each(small, folds, fits, others, [cfg])[0]
+
+
+def _scores_each(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfgs: list):
+    """:func:`_scores` under each of ``cfgs`` (which differ in their pixel weights), all fitted at once."""
+    lowered = [[_lowered(f.synthesized, f.reference, c) for f in folds] for c in cfgs]
     scenes = [
         _with_context(sc, f.context)
-        for f, v in zip(folds, lowered)
-        for sc in weight_scenes(small, f.frames, v, weights_of(cfg), f.held)
+        for c, views in zip(cfgs, lowered)
+        for f, v in zip(folds, views)
+        for sc in weight_scenes(small, f.frames, v, weights_of(c), f.held)
     ]
     fitted = iter(fits(scenes))
-    out = []
-    for k, (f, v) in enumerate(zip(folds, lowered)):
-        every, at = held_back_psnr(small, f.base, f.held), f.at_scored
-        with_views = {float(w): held_back_psnr(small, next(fitted), f.held) for w in weights_of(cfg)}
-        worst = {w: float((p - every).min()) for w, p in with_views.items()}
-        other = None if others is None else held_back_psnr(small, others[k], f.scored)
-        out.append((_Scores(every[at], {w: p[at] for w, p in with_views.items()}, other, worst, every), v))
-    return out
+    return [
+        [
+            (_fold_scores(small, f, fitted, None if others is None else others[k], c), v)
+            for k, (f, v) in enumerate(zip(folds, views))
+        ]
+        for c, views in zip(cfgs, lowered)
+    ]
+
+
+def _fold_scores(small: Scene, f: _Fold, fitted, other: Renderer | None, cfg) -> _Scores:
+    """One fold's scores, its fits with views taken from ``fitted`` (one per weight, in order)."""
+    every, at = held_back_psnr(small, f.base, f.held), f.at_scored
+    with_views = {float(w): held_back_psnr(small, next(fitted), f.held) for w in weights_of(cfg)}
+    worst = {w: float((p - every).min()) for w, p in with_views.items()}
+    second = None if other is None else held_back_psnr(small, other, f.scored)
+    return _Scores(every[at], {w: p[at] for w, p in with_views.items()}, second, worst, every)
+
+
+def _by_weight(scored) -> dict[float, float]:
+    """Mean PSNR over every fold's scored photos with its views, per synthetic-frame weight."""
+    return {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in scored[0][0].by_weight}
+
+
+def _pixel_weighted(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfg):
+    """The folds' scores (:func:`_scores`) with the check's pixel weights settled -> (scores, [(pixel weights,
+    mean PSNR at its best synthetic-frame weight)] for each tried, the check's config with them). With
+    ``cfg.pixel_weights`` auto the views are fitted both with their lowered confidence and uniformly, and the
+    one that renders the held-back photos better is used (confidence on a tie); else only the one asked for."""
+    if cfg.pixel_weights != "auto":
+        return _scores(small, folds, fits, others, cfg), (), cfg
+    cfgs = [replace(cfg, pixel_weights=m) for m in ("confidence", "uniform")]
+    each = _scores_each(small, folds, fits, others, cfgs)
+    tried = tuple((c.pixel_weights, max(_by_weight(s).values())) for c, s in zip(cfgs, each))
+    k = int(np.argmax([p for _, p in tried]))  # the first on a tie
+    log.info(
+        "self-check: the views fitted with their confidence render the held-back photos at %.2f dB, with every "
+        "pixel alike at %.2f: %s pixel weights",
+        tried[0][1],
+        tried[1][1],
+        cfgs[k].pixel_weights,
+    )
+    return each[k], tried, cfgs[k]
 
 
 @dataclass
@@ -621,8 +662,8 @@ def self_check(
         for k, (h, v, b, c) in enumerate(zip(every, views + [v for _, v in wide], bases, ctx))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
-    scored = _scores(small, folds, fits, others, cfg)
-    weights = {w: float(np.concatenate([s.by_weight[w] for s, _ in scored]).mean()) for w in weights_of(cfg)}
+    scored, tried, cfg = _pixel_weighted(small, folds, fits, others, cfg)
+    weights = _by_weight(scored)
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
     trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
@@ -637,6 +678,8 @@ def self_check(
     record = _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan, unclear)
     if trend is not None:
         record = replace(record, gap_trend=trend, reason=record.reason + _trend_reason(trend))
+    if tried:
+        record = replace(record, psnr_by_pixel_weights=tried, reason=record.reason + _pixel_reason(tried, cfg))
     if confirmation is not None:
         reason = _confirm_reason(confirmation, chosen, cfg.recon, record.reason)
         record = replace(record, confirmation=confirmation, reason=reason)
@@ -812,6 +855,7 @@ def _record(
         reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, unclear, other),
         fixer=None if fix is None else fix.record,
         psnr_other_seed=other,
+        pixel_weights=cfg.pixel_weights,
     )
 
 
@@ -898,6 +942,11 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
     factor = np.clip(resize_images(factor, (images.shape[2], images.shape[1])), 0.0, 1.0)
     base = np.ones(images.shape[:3], np.float32) if conf is None else np.asarray(conf, np.float32)
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
+
+
+def _pixel_reason(tried: tuple[tuple[str, float], ...], cfg) -> str:
+    others = ", ".join(f"{m} {p:.2f}" for m, p in tried if m != cfg.pixel_weights)
+    return f"; {cfg.pixel_weights} pixel weights, chosen on the held-back photos (the fits with {others} dB)"
 
 
 def _trend_reason(trend: GapTrend) -> str:

@@ -128,7 +128,9 @@ class SelfCheck:
     words; fixer: the fixer's test (None: not tried); psnr_other_seed: the held-back photos' mean PSNR fitted
     without views at a second seed (None: not fitted), which bounds how much the fit's seed alone moves them;
     gap_trend: the interior views' gain against the width of their gap (None: not measured); confirmation: the
-    kept views' test on photos no fold held back (None: not run)."""
+    kept views' test on photos no fold held back (None: not run); pixel_weights: how the views' pixels were
+    weighted (confidence, uniform; None: not checked); psnr_by_pixel_weights: (pixel weights, mean PSNR at the
+    best synthetic-frame weight) for each one tried when the check chose between them (empty: not chosen)."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -145,6 +147,8 @@ class SelfCheck:
     psnr_other_seed: float | None = None
     gap_trend: GapTrend | None = None
     confirmation: Confirmation | None = None
+    pixel_weights: str | None = None
+    psnr_by_pixel_weights: tuple[tuple[str, float], ...] = ()
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -153,6 +157,7 @@ class SelfCheck:
     def to_json(self) -> dict:
         doc = asdict(self)
         doc["psnr_by_weight"] = [{"weight": w, "psnr": p} for w, p in self.psnr_by_weight]
+        doc["psnr_by_pixel_weights"] = [{"pixel_weights": m, "psnr": p} for m, p in self.psnr_by_pixel_weights]
         return doc
 
     @classmethod
@@ -174,6 +179,10 @@ class SelfCheck:
             psnr_other_seed=_opt_float(doc.get("psnr_other_seed")),
             gap_trend=GapTrend.from_json(doc["gap_trend"]) if doc.get("gap_trend") else None,
             confirmation=Confirmation.from_json(doc["confirmation"]) if doc.get("confirmation") else None,
+            pixel_weights=None if doc.get("pixel_weights") is None else str(doc["pixel_weights"]),
+            psnr_by_pixel_weights=tuple(
+                (str(d["pixel_weights"]), float(d["psnr"])) for d in doc.get("psnr_by_pixel_weights", ())
+            ),
         )
 
 
