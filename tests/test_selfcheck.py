@@ -219,19 +219,28 @@ def test_uniform_pixel_weights_fit_and_write_every_pixel_of_a_view_alike():
 
 
 def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_held_back_photos(monkeypatch):
+    """Uniformly weighted views are judged beside context views weighted alike too, against a fit without
+    views made again beside those (as the final fit weighs every view one way)."""
     from sparself.evaluation import selfcheck
     from sparself.evaluation.weighting import ValidationViews
 
     views = ValidationViews(np.zeros((1, 2, 2, 3), np.float32), np.ones((1, 2, 2), np.float32), [])
-    fold = selfcheck._Fold([1, 5], "base", [0], [1], [], views, None, None)  # type: ignore[arg-type]
+    context = selfcheck._Context([], views, 1.0)
+    fold = selfcheck._Fold([1, 5], "base", [0], [1], [], views, None, None, context)  # type: ignore[arg-type]
     monkeypatch.setattr(selfcheck, "informative_confidence", lambda img, conf, ref, cfg: np.ones(img.shape[:3]))
-    # a fit's name says how its views were weighted: the scenes stand for themselves
+    # a scene stands for itself: how its views are weighted, and its context's weighting when it is the inputs'
     monkeypatch.setattr(
         selfcheck,
         "weight_scenes",
         lambda small, frames, v, weights, held: [
             ("uniform" if v.confidence is None else "confidence", w) for w in weights
         ],
+    )
+    monkeypatch.setattr(selfcheck, "validation_split", lambda small, held: (None, "inputs"))
+    monkeypatch.setattr(
+        selfcheck,
+        "_with_context",
+        lambda sc, c: sc if isinstance(sc, tuple) else f"{sc} {'alike' if c.views.confidence is None else 'confident'}",
     )
     cfg = SelfCheckConfig(pixel_weights="auto", check_weights=(0.5, 1.0))
 
@@ -244,22 +253,25 @@ def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_he
 
     psnr = {
         "base": [20.0, 20.0],
+        "inputs alike": [19.0, 19.0],
         ("confidence", 0.5): [21.0, 0.0],
         ("confidence", 1.0): [20.5, 0.0],
         ("uniform", 0.5): [20.0, 0.0],
         ("uniform", 1.0): [21.5, 0.0],
     }
-    ([(scores, lowered)], tried, chosen), fitted = settle(psnr)
+    ([own], [(scores, lowered)], tried, chosen), fitted = settle(psnr)
     # every fit of both ways in one call; each way judged at its best weight, at the scored photo only
-    assert sorted(fitted) == sorted(k for k in psnr if k != "base")
+    assert sorted(map(str, fitted)) == sorted(str(k) for k in psnr if k != "base")
     assert tried == (("confidence", 21.0), ("uniform", 21.5)) and chosen.pixel_weights == "uniform"
     assert lowered.confidence is None and scores.by_weight == {0.5: [20.0], 1.0: [21.5]}
-    psnr[("uniform", 1.0)] = [21.0, 0.0]  # a tie keeps the network's confidence
-    ([(scores, lowered)], tried, chosen), _ = settle(psnr)
+    assert own.base == "inputs alike" and own.context.views.confidence is None and scores.without == [19.0]
+    psnr[("uniform", 1.0)] = [21.0, 0.0]  # a tie keeps the network's confidence and the fold as it was
+    ([own], [(scores, lowered)], tried, chosen), _ = settle(psnr)
     assert chosen.pixel_weights == "confidence" and lowered.confidence is not None and scores.by_weight[0.5] == [21.0]
+    assert own is fold and scores.without == [20.0]
     # asked for one way, the check fits only that one and records no choice
-    (_, tried, chosen), fitted = settle(psnr, replace(cfg, pixel_weights="uniform"))
-    assert tried == () and chosen.pixel_weights == "uniform" and {k for k, _ in fitted} == {"uniform"}
+    (_, _, tried, chosen), fitted = settle(psnr, replace(cfg, pixel_weights="confidence"))
+    assert tried == () and chosen.pixel_weights == "confidence" and {k for k, _ in fitted} == {"confidence"}
 
 
 def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():

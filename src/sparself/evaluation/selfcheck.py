@@ -517,26 +517,40 @@ def _scores(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Render
     """Each fold's views with their confidence lowered where they agree with its render, and every fold's fits
     with its views at each weight, all fitted at once: [(scores, lowered views)] per fold (``others``: each
     fold's fit without views at the second seed, or None)."""
-    return _scores_each(small, folds, fits, others, [cfg])[0]
+    return _scores_each(small, folds, fits, others, [cfg])[0][1]
 
 
 def _scores_each(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfgs: list):
-    """:func:`_scores` under each of ``cfgs`` (which differ in their pixel weights), all fitted at once."""
-    lowered = [[_lowered(f.synthesized, f.reference, c) for f in folds] for c in cfgs]
-    scenes = [
+    """:func:`_scores` under each of ``cfgs`` (which differ in their pixel weights), all fitted at once, with
+    each one's folds (:func:`_weighted_alike`): [(folds, [(scores, lowered views)] per fold)] per config."""
+    variants = [[_weighted_alike(small, f, c) for f in folds] for c in cfgs]
+    rebased = [sc for vs in variants for _, sc in vs if sc is not None]
+    lowered = [[_lowered(f.synthesized, f.reference, c) for f, _ in vs] for c, vs in zip(cfgs, variants)]
+    scenes = rebased + [
         _with_context(sc, f.context)
-        for c, views in zip(cfgs, lowered)
-        for f, v in zip(folds, views)
+        for c, vs, views in zip(cfgs, variants, lowered)
+        for (f, _), v in zip(vs, views)
         for sc in weight_scenes(small, f.frames, v, weights_of(c), f.held)
     ]
-    fitted = iter(fits(scenes))
-    return [
-        [
-            (_fold_scores(small, f, fitted, None if others is None else others[k], c), v)
-            for k, (f, v) in enumerate(zip(folds, views))
-        ]
-        for c, views in zip(cfgs, lowered)
-    ]
+    fitted = fits(scenes)
+    bases, with_views = iter(fitted[: len(rebased)]), iter(fitted[len(rebased) :])
+    out = []
+    for c, vs, views in zip(cfgs, variants, lowered):
+        own = [f if sc is None else replace(f, base=next(bases)) for f, sc in vs]
+        second: list[Renderer | None] = list(others) if others is not None else [None] * len(own)
+        out.append((own, [(_fold_scores(small, f, with_views, o, c), v) for f, o, v in zip(own, second, views)]))
+    return out
+
+
+def _weighted_alike(small: Scene, f: _Fold, cfg) -> tuple[_Fold, Scene | None]:
+    """The fold as fitted with ``cfg``'s pixel weights: with uniform ones, its context's views weigh every pixel
+    alike too, as they will in the final fit, and its fit without views must be made again on that scene
+    (returned; None: the fold is unchanged)."""
+    ctx = f.context
+    if ctx is None or cfg.pixel_weights != "uniform" or ctx.views.confidence is None:
+        return f, None
+    ctx = replace(ctx, views=replace(ctx.views, confidence=None))
+    return replace(f, context=ctx), _with_context(validation_split(small, f.held)[1], ctx)
 
 
 def _fold_scores(small: Scene, f: _Fold, fitted, other: Renderer | None, cfg) -> _Scores:
@@ -554,15 +568,17 @@ def _by_weight(scored) -> dict[float, float]:
 
 
 def _pixel_weighted(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfg):
-    """The folds' scores (:func:`_scores`) with the check's pixel weights settled -> (scores, [(pixel weights,
-    mean PSNR at its best synthetic-frame weight)] for each tried, the check's config with them). With
-    ``cfg.pixel_weights`` auto the views are fitted both with their lowered confidence and uniformly, and the
-    one that renders the held-back photos better is used (confidence on a tie); else only the one asked for."""
+    """The folds' scores (:func:`_scores`) with the check's pixel weights settled -> (the folds as fitted with
+    them, their scores, [(pixel weights, mean PSNR at its best synthetic-frame weight)] for each tried, the
+    check's config with them). With ``cfg.pixel_weights`` auto the views are fitted both with their lowered
+    confidence and uniformly, and the one that renders the held-back photos better is used (confidence on a
+    tie); else only the one asked for."""
     if cfg.pixel_weights != "auto":
-        return _scores(small, folds, fits, others, cfg), (), cfg
+        [(own, scored)] = _scores_each(small, folds, fits, others, [cfg])
+        return own, scored, (), cfg
     cfgs = [replace(cfg, pixel_weights=m) for m in ("confidence", "uniform")]
     each = _scores_each(small, folds, fits, others, cfgs)
-    tried = tuple((c.pixel_weights, max(_by_weight(s).values())) for c, s in zip(cfgs, each))
+    tried = tuple((c.pixel_weights, max(_by_weight(s).values())) for c, (_, s) in zip(cfgs, each))
     k = int(np.argmax([p for _, p in tried]))  # the first on a tie
     log.info(
         "self-check: the views fitted with their confidence render the held-back photos at %.2f dB, with every "
@@ -571,7 +587,7 @@ def _pixel_weighted(small: Scene, folds: list[_Fold], fits: FitMany, others: lis
         tried[1][1],
         cfgs[k].pixel_weights,
     )
-    return each[k], tried, cfgs[k]
+    return each[k][0], each[k][1], tried, cfgs[k]
 
 
 @dataclass
@@ -662,7 +678,7 @@ def self_check(
         for k, (h, v, b, c) in enumerate(zip(every, views + [v for _, v in wide], bases, ctx))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
-    scored, tried, cfg = _pixel_weighted(small, folds, fits, others, cfg)
+    folds, scored, tried, cfg = _pixel_weighted(small, folds, fits, others, cfg)
     weights = _by_weight(scored)
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
