@@ -249,7 +249,10 @@ def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_he
             selfcheck, "held_back_psnr", lambda small, r, held: np.asarray(psnr[r])[[[1, 5].index(h) for h in held]]
         )
         fitted: list = []
-        return selfcheck._pixel_weighted(None, [fold], lambda scenes: fitted.extend(scenes) or scenes, None, c), fitted
+        ranked, tried = selfcheck._pixel_weighted(None, [fold], lambda scenes: fitted.extend(scenes) or scenes, None, c)
+        own, scored, chosen = ranked[0]
+        assert {r[2].pixel_weights for r in ranked} == ({"confidence", "uniform"} if tried else {chosen.pixel_weights})
+        return (own, scored, tried, chosen), fitted
 
     psnr = {
         "base": [20.0, 20.0],
@@ -272,6 +275,42 @@ def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_he
     # asked for one way, the check fits only that one and records no choice
     (_, _, tried, chosen), fitted = settle(psnr, replace(cfg, pixel_weights="confidence"))
     assert tried == () and chosen.pixel_weights == "confidence" and {k for k, _ in fitted} == {"confidence"}
+
+
+def test_auto_pixel_weights_fall_back_to_the_other_way_when_the_better_keeps_no_view(monkeypatch):
+    from sparself.evaluation import selfcheck
+
+    scene, cfg = _line(12), replace(MPI, pixel_weights="auto", confirm=True)
+    planned = plan_poses(scene, PLAN)
+    weighted = selfcheck._pixel_weighted
+
+    def uniform_first(*args):
+        ranked, tried = weighted(*args)
+        return sorted(ranked, key=lambda r: r[2].pixel_weights != "uniform"), tried
+
+    def confirmation(inputs, small, planned, keep, w, synth, fits, fix, c):
+        gains = (-0.5, -2.0) if c.pixel_weights == "uniform" else (0.5, 0.25)
+        return Confirmation(("a", "b"), gains, c.pixel_weights != "uniform") if keep.any() else None
+
+    monkeypatch.setattr(selfcheck, "_pixel_weighted", uniform_first)
+    monkeypatch.setattr(selfcheck, "_confirmation", confirmation)
+
+    def synth(sc, targets):
+        return Synthesized(_exact(sc, targets), np.full((len(targets), 64, 96), 0.4, np.float32))
+
+    checked = selfcheck.self_check(scene, planned, synth, synth(scene, planned), cfg, "paper")
+    rec = checked.record
+    # the views are written as the confirmed way fitted them: the network's confidence, not the weight alone
+    assert checked.frames and rec.pixel_weights == "confidence" and rec.confirmation.confirmed
+    assert checked.confidence.max() <= 0.4 + 1e-6 and {m for m, _ in rec.psnr_by_pixel_weights} == {
+        "confidence",
+        "uniform",
+    }
+    assert "not confirmed (-1.25 dB on the mean, worst -2.00)" in rec.reason
+    # when neither way keeps a view, the record is the first way's
+    monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: Confirmation(("a",), (-0.5,), False))
+    none = selfcheck.self_check(scene, planned, synth, synth(scene, planned), cfg, "paper")
+    assert not none.frames and none.record.pixel_weights == "uniform" and not none.record.confirmation.confirmed
 
 
 def test_a_views_gain_is_the_gain_at_its_nearest_held_back_inputs():

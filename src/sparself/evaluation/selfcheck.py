@@ -568,26 +568,26 @@ def _by_weight(scored) -> dict[float, float]:
 
 
 def _pixel_weighted(small: Scene, folds: list[_Fold], fits: FitMany, others: list[Renderer] | None, cfg):
-    """The folds' scores (:func:`_scores`) with the check's pixel weights settled -> (the folds as fitted with
-    them, their scores, [(pixel weights, mean PSNR at its best synthetic-frame weight)] for each tried, the
-    check's config with them). With ``cfg.pixel_weights`` auto the views are fitted both with their lowered
-    confidence and uniformly, and the one that renders the held-back photos better is used (confidence on a
-    tie); else only the one asked for."""
+    """The folds' scores (:func:`_scores`) per way of weighting the views' pixels, the one that renders the
+    held-back photos better first -> ([(the folds as fitted that way, their scores, the check's config with
+    it)], [(pixel weights, mean PSNR at its best synthetic-frame weight)] for each tried). With
+    ``cfg.pixel_weights`` auto the views are fitted both with their lowered confidence and uniformly (the
+    confidence first on a tie); else only the way asked for, and nothing is recorded as tried."""
     if cfg.pixel_weights != "auto":
         [(own, scored)] = _scores_each(small, folds, fits, others, [cfg])
-        return own, scored, (), cfg
+        return [(own, scored, cfg)], ()
     cfgs = [replace(cfg, pixel_weights=m) for m in ("confidence", "uniform")]
     each = _scores_each(small, folds, fits, others, cfgs)
     tried = tuple((c.pixel_weights, max(_by_weight(s).values())) for c, (_, s) in zip(cfgs, each))
-    k = int(np.argmax([p for _, p in tried]))  # the first on a tie
+    order = [1, 0] if tried[1][1] > tried[0][1] else [0, 1]
     log.info(
         "self-check: the views fitted with their confidence render the held-back photos at %.2f dB, with every "
         "pixel alike at %.2f: %s pixel weights",
         tried[0][1],
         tried[1][1],
-        cfgs[k].pixel_weights,
+        cfgs[order[0]].pixel_weights,
     )
-    return each[k][0], each[k][1], tried, cfgs[k]
+    return [(*each[k], cfgs[k]) for k in order], tried
 
 
 @dataclass
@@ -678,11 +678,47 @@ def self_check(
         for k, (h, v, b, c) in enumerate(zip(every, views + [v for _, v in wide], bases, ctx))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
-    folds, scored, tried, cfg = _pixel_weighted(small, folds, fits, others, cfg)
+    ranked, tried = _pixel_weighted(small, folds, fits, others, cfg)
+    tested: list[tuple[_Outcome, SelfCheckConfig]] = []
+    for own, scored, c in ranked:  # with auto pixel weights, the other way when the first keeps no view
+        tested.append((_outcome(inputs, small, planned, own, made[len(held) :], scored, synth, fits, fix, c), c))
+        if tested[-1][0].keep.any():
+            break
+    out, cfg = tested[-1] if tested[-1][0].keep.any() else tested[0]
+    record = _record(small, planned, plan, out, fix, cfg)
+    if tried:
+        reason = record.reason + _pixel_reason(tried, cfg, tested[0][0] if out is not tested[0][0] else None)
+        record = replace(record, psnr_by_pixel_weights=tried, reason=reason)
+    (log.info if out.keep.any() else log.warning)("self-check: %s", record.reason)
+    return _written(small, planned, final, out.keep, record, out.folds[0], fix, reference, cfg)
+
+
+@dataclass
+class _Outcome:
+    """The check's decision with one way of weighting the views' pixels: the folds as fitted, their scores,
+    the mean PSNR per synthetic-frame weight and the one chosen, the gap trend, the folds' decisions, the kept
+    planned views and each one's gain (NaN: not checked), the confirmation and how many views it tested."""
+
+    folds: list[_Fold]
+    scores: list[_Scores]
+    weights: dict[float, float]
+    w: float
+    trend: GapTrend | None
+    decided: list[_Decision]
+    unclear: bool
+    keep: np.ndarray
+    gains: np.ndarray
+    confirmation: Confirmation | None
+    chosen: int
+
+
+def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fix, cfg) -> _Outcome:
+    """The folds' decisions at the best synthetic-frame weight, gated (:func:`_gated`), and their confirmation
+    (none kept when it fails; ``wide``: the gap-trend fold, if any)."""
     weights = _by_weight(scored)
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
-    trend = _gap_trend(small, folds, scores, made[len(held) :], w, fits, cfg)
+    trend = _gap_trend(small, folds, scores, wide, w, fits, cfg)
     decided, unclear = _gated(folds, _decide(small, planned, folds, scored, w, fits, cfg), scores, trend, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
@@ -691,16 +727,7 @@ def self_check(
     chosen = int(keep.sum())
     if confirmation is not None and not confirmation.confirmed:
         decided, keep = [_dropped(d, s) for d, s in zip(decided, scores)], np.zeros(len(planned), bool)
-    record = _record(small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan, unclear)
-    if trend is not None:
-        record = replace(record, gap_trend=trend, reason=record.reason + _trend_reason(trend))
-    if tried:
-        record = replace(record, psnr_by_pixel_weights=tried, reason=record.reason + _pixel_reason(tried, cfg))
-    if confirmation is not None:
-        reason = _confirm_reason(confirmation, chosen, cfg.recon, record.reason)
-        record = replace(record, confirmation=confirmation, reason=reason)
-    (log.info if keep.any() else log.warning)("self-check: %s", record.reason)
-    return _written(small, planned, final, keep, record, folds[0], fix, reference, cfg)
+    return _Outcome(folds, scores, weights, w, trend, decided, unclear, keep, gains, confirmation, chosen)
 
 
 def _confirmation(
@@ -850,27 +877,33 @@ def seed_change(scores: list[_Scores]) -> float | None:
     return abs(float(np.concatenate([s.other - s.without for s in scores if s.other is not None]).mean()))
 
 
-def _record(
-    small, planned, folds, scores, decided, weights, w, keep, gains, fix, cfg, plan: str, unclear: bool
-) -> SelfCheck:
-    """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos."""
-    without = float(np.concatenate([s.without for s in scores]).mean())
-    seconds = [s.other for s in scores if s.other is not None]
-    other = float(np.concatenate(seconds).mean()) if seconds and len(seconds) == len(scores) else None
-    best = float(np.concatenate([d.chosen for d in decided]).mean())
-    unchecked = int(np.isnan(gains).sum())
+def _record(small: Scene, planned: list[Frame], plan: str, out: _Outcome, fix: FixerFit | None, cfg) -> SelfCheck:
+    """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos, the
+    reason with the gap trend and the confirmation."""
+    without = float(np.concatenate([s.without for s in out.scores]).mean())
+    seconds = [s.other for s in out.scores if s.other is not None]
+    other = float(np.concatenate(seconds).mean()) if seconds and len(seconds) == len(out.scores) else None
+    best = float(np.concatenate([d.chosen for d in out.decided]).mean())
+    unchecked, kept = int(np.isnan(out.gains).sum()), int(out.keep.sum())
+    reason = _reason(cfg.recon, kept, len(planned), out.w, best, without, unchecked, out.unclear, other)
+    if out.trend is not None:
+        reason += _trend_reason(out.trend)
+    if out.confirmation is not None:
+        reason = _confirm_reason(out.confirmation, out.chosen, cfg.recon, reason)
     return SelfCheck(
         recon=cfg.recon,
         plan=plan,
-        validation=tuple(small.frames[i].name for f in folds for i in f.scored),
+        validation=tuple(small.frames[i].name for f in out.folds for i in f.scored),
         psnr_without=without,
-        psnr_by_weight=tuple(weights.items()),
-        psnr_kept=best if keep.any() else None,
-        weight=w if keep.any() else None,
-        views=_view_checks(planned, gains, keep),
-        reason=_reason(cfg.recon, int(keep.sum()), len(planned), w, best, without, unchecked, unclear, other),
+        psnr_by_weight=tuple(out.weights.items()),
+        psnr_kept=best if kept else None,
+        weight=out.w if kept else None,
+        views=_view_checks(planned, out.gains, out.keep),
+        reason=reason,
         fixer=None if fix is None else fix.record,
         psnr_other_seed=other,
+        gap_trend=out.trend,
+        confirmation=out.confirmation,
         pixel_weights=cfg.pixel_weights,
     )
 
@@ -960,9 +993,19 @@ def _exported(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray
     return np.clip(base * factor * weight, 0.0, 1.0).astype(np.float32)
 
 
-def _pixel_reason(tried: tuple[tuple[str, float], ...], cfg) -> str:
+def _pixel_reason(tried: tuple[tuple[str, float], ...], cfg, given_up: _Outcome | None) -> str:
+    """How the pixel weights were chosen (``given_up``: the outcome with the other ones, which scored higher
+    on the held-back photos but kept no view; None: there was none)."""
     others = ", ".join(f"{m} {p:.2f}" for m, p in tried if m != cfg.pixel_weights)
-    return f"; {cfg.pixel_weights} pixel weights, chosen on the held-back photos (the fits with {others} dB)"
+    if given_up is None:
+        return f"; {cfg.pixel_weights} pixel weights, chosen on the held-back photos (the fits with {others} dB)"
+    c, why = given_up.confirmation, "kept no view"
+    if c is not None and not c.confirmed:
+        gains = np.asarray(c.gains)
+        why = f"their {given_up.chosen} views were not confirmed ({gains.mean():+.2f} dB on the mean, worst "
+        why += f"{gains.min():+.2f})"
+    head = f"; {cfg.pixel_weights} pixel weights: the fits with {others} dB scored higher on the held-back photos, "
+    return head + f"but {why}"
 
 
 def _trend_reason(trend: GapTrend) -> str:
