@@ -218,7 +218,7 @@ def test_uniform_pixel_weights_fit_and_write_every_pixel_of_a_view_alike():
     assert np.array_equal(checked.confidence, np.full(checked.confidence.shape, checked.record.weight, np.float32))
 
 
-def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_held_back_photos(monkeypatch):
+def test_chosen_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_held_back_photos(monkeypatch):
     """Uniformly weighted views are judged beside context views weighted alike too, against a fit without
     views made again beside those (as the final fit weighs every view one way)."""
     from sparself.evaluation import selfcheck
@@ -242,7 +242,7 @@ def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_he
         "_with_context",
         lambda sc, c: sc if isinstance(sc, tuple) else f"{sc} {'alike' if c.views.confidence is None else 'confident'}",
     )
-    cfg = SelfCheckConfig(pixel_weights="auto", check_weights=(0.5, 1.0))
+    cfg = SelfCheckConfig(pixel_weights="choose", check_weights=(0.5, 1.0))
 
     def settle(psnr, c=cfg):
         monkeypatch.setattr(
@@ -277,10 +277,10 @@ def test_auto_pixel_weights_fit_the_views_both_ways_and_use_the_better_on_the_he
     assert tried == () and chosen.pixel_weights == "confidence" and {k for k, _ in fitted} == {"confidence"}
 
 
-def test_auto_pixel_weights_fall_back_to_the_other_way_when_the_better_keeps_no_view(monkeypatch):
+def test_chosen_pixel_weights_fall_back_to_the_other_way_when_the_better_keeps_no_view(monkeypatch):
     from sparself.evaluation import selfcheck
 
-    scene, cfg = _line(12), replace(MPI, pixel_weights="auto", confirm=True)
+    scene, cfg = _line(12), replace(MPI, pixel_weights="choose", confirm=True)
     planned = plan_poses(scene, PLAN)
     weighted = selfcheck._pixel_weighted
 
@@ -479,6 +479,18 @@ def test_the_confirmation_runs_by_default_for_the_3dgs_only_and_as_asked_otherwi
 
     assert confirm_on(SelfCheckConfig(recon="3dgs")) and not confirm_on(SelfCheckConfig(recon="mpi"))
     assert not confirm_on(SelfCheckConfig(recon="3dgs", confirm=False)) and confirm_on(replace(MPI, confirm=True))
+
+
+def test_the_pixel_weights_are_chosen_per_capture_by_default_for_the_3dgs_only_and_as_asked_otherwise():
+    from sparself.evaluation.selfcheck import pixel_weights_of
+
+    assert [pixel_weights_of(SelfCheckConfig(recon=r)) for r in ("3dgs", "mpi", "nerf")] == [
+        "choose",
+        "confidence",
+        "confidence",
+    ]
+    assert pixel_weights_of(SelfCheckConfig(recon="3dgs", pixel_weights="uniform")) == "uniform"
+    assert pixel_weights_of(replace(MPI, pixel_weights="choose")) == "choose"
 
 
 def test_no_fold_synthesizes_from_its_held_back_photos(monkeypatch):

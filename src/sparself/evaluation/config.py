@@ -14,7 +14,7 @@ DIETNERF_NOTE = "not run: DietNeRF needs CLIP weights that cannot be fetched her
 
 PlannedSection = Literal["midpoints", "extrapolations"]
 Gap = Literal["other", "own"]  # where the self-check measures a view's gain (evaluation.folds)
-PixelWeights = Literal["auto", "confidence", "uniform"]  # per-pixel weights of the self-check's views
+PixelWeights = Literal["auto", "choose", "confidence", "uniform"]  # per-pixel weights of the self-check's views
 KeepRule = Literal["each", "together"]  # which views a self-check fold keeps
 # results of the planned views that have a real photo
 PLANNED_SECTIONS: tuple[PlannedSection, ...] = ("midpoints", "extrapolations")
@@ -90,7 +90,7 @@ class EvalConfig:
         "where the checked row's self-check measures a view: outside its own gap, or inside it (densify --gain-gap)",
     )
     check_pixel_weights: PixelWeights = option(
-        "confidence", "per-pixel weights of the checked row's views (densify --pixel-weights)"
+        "auto", "per-pixel weights of the checked row's views (densify --pixel-weights; auto: as densify's)"
     )
     check_keep: KeepRule = option("each", "which views a fold of the checked row's self-check keeps (densify --keep)")
     check_gap_trend: bool = option(
