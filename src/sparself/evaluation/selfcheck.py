@@ -782,15 +782,18 @@ def _confirmation(
 
 def _confirm_reason(c: Confirmation, chosen: int, recon: str, reason: str) -> str:
     """The decision's reason with the confirmation (``chosen``: the views it tested; ``reason``: the check's)."""
-    gains = np.asarray(c.gains)
-    measured = f"on {len(gains)} input photos no fold held back ({gains.mean():+.2f} dB on the mean, worst "
-    measured += f"{gains.min():+.2f})"
+    measured = f"on {len(c.gains)} input photos no fold held back ({_confirm_change(c)})"
     if c.confirmed:
         return f"{reason}; confirmed {measured}"
     return (
         f"the {chosen} views that improve the {recon} fit on the held-back input photos are not confirmed "
         f"{measured}: the capture is written without synthesized views"
     )
+
+
+def _confirm_change(c: Confirmation) -> str:
+    """The confirmation's change at its photos, in words."""
+    return f"{np.mean(c.gains):+.2f} dB on the mean, worst {min(c.gains):+.2f}"
 
 
 def _gated(
@@ -1014,9 +1017,7 @@ def _pixel_reason(tried: tuple[tuple[str, float], ...], cfg, given_up: _Outcome 
         return f"; {cfg.pixel_weights} pixel weights, chosen on the held-back photos (the fits with {others} dB)"
     c, why = given_up.confirmation, "kept no view"
     if c is not None and not c.confirmed:
-        gains = np.asarray(c.gains)
-        why = f"their {given_up.chosen} views were not confirmed ({gains.mean():+.2f} dB on the mean, worst "
-        why += f"{gains.min():+.2f})"
+        why = f"their {given_up.chosen} views were not confirmed ({_confirm_change(c)})"
     head = f"; {cfg.pixel_weights} pixel weights: the fits with {others} dB scored higher on the held-back photos, "
     return head + f"but {why}"
 
