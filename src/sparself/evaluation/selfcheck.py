@@ -148,7 +148,7 @@ class SelfCheckConfig:
         "on every pixel (uniform: what a trainer that ignores masks, such as gsplat's, fits); choose: the folds "
         "fit the views both ways and use the one that renders their held-back photos better, the other when it "
         "keeps no view; auto: choose for the 3DGS (measured: +2.20 dB at 9 llff_bird inputs against +1.69 with "
-        "confidence, as much elsewhere), confidence for the others",
+        "confidence, at least as much on four other captures), confidence for the others",
     )
     keep: KeepRule = option(
         "each",
