@@ -770,11 +770,10 @@ def _confirmation(
     names = tuple(small.frames[p].name for h in helds for p in h)
     confirmation = Confirmation(names, tuple(float(g) for g in gains), bool(gains.mean() >= 0 and safe))
     log.info(
-        "self-check: the %d kept views on %d input photos no fold held back: %+.2f dB on the mean, worst %+.2f (%s)",
+        "self-check: the %d kept views on %d input photos no fold held back: %s (%s)",
         int(keep.sum()),
         len(gains),
-        gains.mean(),
-        gains.min(),
+        _confirm_change(confirmation),
         "confirmed" if confirmation.confirmed else "not confirmed",
     )
     return confirmation
