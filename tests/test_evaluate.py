@@ -398,10 +398,19 @@ def test_the_checked_row_runs_densifys_check_with_the_evaluations_choices():
 
     from sparself.evaluation.checked import check_config
 
-    cfg = EvalConfig(check_plan="paper", check_gain_gap="own", check_steps=123, recon_seed=4)
+    cfg = EvalConfig(check_plan="paper", check_gain_gap="own", check_steps=123, check_size=48, recon_seed=4)
     got = check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "3dgs", 2)
     assert (got.recon, got.plan_mode, got.gain_gap, got.check_steps, got.check_seed) == ("3dgs", "paper", "own", 123, 6)
+    assert got.check_size == 48
     assert check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "nearest", 0) is None  # no check for it
+
+
+@pytest.mark.parametrize("bad", [{"check_steps": 0}, {"check_size": 7}])
+def test_a_check_fit_without_steps_or_pixels_is_refused(bad):
+    from sparself.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="check_steps must be >= 1 and check_size >= 8"):
+        EvalConfig(**bad).validate()
 
 
 def test_the_seeds_3dgs_self_checks_run_in_turns_on_two_workers_decide_as_one_after_the_other(tmp_path, monkeypatch):

@@ -61,6 +61,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         recon=recon,
         plan_mode=ev.cfg.check_plan,
         check_steps=ev.cfg.check_steps,
+        check_size=ev.cfg.check_size,
         check_seed=fit_seed(ev.cfg, seed),
         gain_gap=ev.cfg.check_gain_gap,
         pixel_weights=ev.cfg.check_pixel_weights,

@@ -114,6 +114,7 @@ class EvalConfig:
         "(densify --ends-context; auto: for the 3DGS)",
     )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
+    check_size: int = option(64, "long side in px of the checked row's self-check fits (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
     weighted: bool = option(
         True,
@@ -155,8 +156,10 @@ class EvalConfig:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
         if self.splat_steps_per_view is not None and self.splat_steps_per_view < 1:
             raise ConfigError(f"splat_steps_per_view must be at least 1, got {self.splat_steps_per_view}")
-        if self.check_steps < 1:
-            raise ConfigError(f"check_steps must be >= 1, got {self.check_steps}")
+        if self.check_steps < 1 or self.check_size < 8:
+            raise ConfigError(
+                f"check_steps must be >= 1 and check_size >= 8, got {self.check_steps}, {self.check_size}"
+            )
         if self.first_seed < 0:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:
