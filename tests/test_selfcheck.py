@@ -28,15 +28,8 @@ from sparself.evaluation.folds import (
     view_gains,
     widened_gaps,
 )
-from sparself.evaluation.selfcheck import (
-    SelfCheckConfig,
-    informative_confidence,
-    spread_scenes,
-    weakest_plan,
-    weights_of,
-)
-from sparself.evaluation.weighting import validation_split
-from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses
+from sparself.evaluation.selfcheck import SelfCheckConfig, informative_confidence, weakest_plan, weights_of
+from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, plan_poses, weakness_decides
 from sparself.synthesis.synthesize import Synthesized
 
 PLAN = PlanConfig(n_mid=4, n_extra=2)
@@ -350,31 +343,14 @@ class _Bump:
         return np.full((cam.height, cam.width, 3), v, np.float32)
 
 
-def _spread_at(at: float, width: float, lacking: str):
-    """fits(scenes) where the fit without input ``lacking`` renders a bump, every other fit zeros."""
-    return lambda scenes: [_Bump(lacking not in {f.name for f in sc.frames}, at, width) for sc in scenes]
+def _halves_disagree_at(at: float, width: float):
+    """fits(scenes) where the half starting at the second input renders a bump, the other zeros."""
+    return lambda scenes: [_Bump(sc.frames[0].name == "src1", at, width) for sc in scenes]
 
 
-@pytest.mark.parametrize("n", [9, 10, 25])
-def test_the_fits_that_plan_lack_one_input_of_every_gap_and_are_the_checks_own(n):
-    """Every gap between the inputs is measured by a planning fit lacking one of its two inputs, no fit
-    lacks both, and those fits are the check's fits of its folds without their photos (planning fits
-    nothing more)."""
-    scene = _line(n)
-    scenes = spread_scenes(scene, "own")
-    lacking = [{f.name for f in scene.frames} - {f.name for f in sc.frames} for sc in scenes]
-    for g in range(n - 1):
-        ends = {f"src{g}", f"src{g + 1}"}
-        assert max(len(ends & gone) for gone in lacking) == 1, g
-    folds = [validation_split(scene, h)[1] for h in check_folds(n, "own")]
-    assert [[f.name for f in sc.frames] for sc in scenes] == [[f.name for f in sc.frames] for sc in folds[:2]]
-    five = spread_scenes(_line(5), "other")  # one fold only: the fit on every input is the second
-    assert [len(sc) for sc in five] == [4, 5]
-
-
-def test_the_weak_plan_takes_the_gap_and_the_end_where_the_fits_spread():
+def test_the_weak_plan_takes_the_gap_and_the_end_where_the_halves_disagree():
     scene = _line(8)
-    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), _spread_at(0.42, 0.05, "src4"), "other")
+    picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=1), _halves_disagree_at(0.42, 0.05), "other")
     # the gaps that disagree most on average, 4-5 (the bump at x = 0.42 is a fifth of the way in) and 3-4,
     # each at its midpoint, where a fit on both of its inputs is farthest from either; then the end
     assert [f.index for f in picked] == [3.5, 4.5, 7.2]
@@ -587,9 +563,26 @@ def test_a_view_past_an_end_is_stood_in_for_by_the_same_extrapolation_one_input_
     assert stand_ins(scene, inside) == inside
 
 
+def test_the_weak_plan_fits_nothing_when_no_weakness_could_change_it():
+    """A view for every gap and one past each end: any weakness picks the same poses, so nothing is fitted;
+    with one gap left out (or one end visited twice) the weakness decides."""
+
+    def no_fits(scenes):
+        raise AssertionError("the plan fitted a reconstruction it did not need")
+
+    scene, every = _line(9), PlanConfig(n_mid=8, n_extra=2)
+    picked = [f.index for f in weakest_plan(scene, every, no_fits, "own")]
+    cands = candidate_poses(scene, every)
+    rng = np.random.default_rng(0)
+    assert all([f.index for f in pick_poses(cands, rng.random(len(cands)), every)] == picked for _ in range(20))
+    for cfg in (PlanConfig(n_mid=7, n_extra=2), PlanConfig(n_mid=8, n_extra=1)):
+        picks = {tuple(f.index for f in pick_poses(cands, rng.random(len(cands)), cfg)) for _ in range(20)}
+        assert weakness_decides(cands, cfg) and len(picks) > 1
+
+
 def test_the_weak_plan_avoids_the_gaps_the_check_widens():
     scene = _line(12)
-    fit = _spread_at(0.2, 0.15, "src2")  # at input 2, by the fold holding it back
+    fit = _halves_disagree_at(0.2, 0.15)  # at input 2
     picked = weakest_plan(scene, PlanConfig(n_mid=2, n_extra=0), fit, "other")
     assert [f.index for f in picked] == [1.5, 2.5]  # beside held-back input 2: measured by the second fold
     assert measuring_fold(scene, picked, "other").tolist() == [1, 1]

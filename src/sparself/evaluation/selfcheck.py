@@ -2,12 +2,11 @@
 at held-back *input* photos, so a densified capture is never worse than the N photos alone there (at other
 poses it can be: the check measures with the error of its folds, whose gaps are twice the final fit's).
 
-* **Look before synthesizing** (:func:`weakest_plan`): the fits without each of the check's folds between the
-  ends (:func:`spread_scenes`; each lacks one input of every other gap) are rendered at candidate poses
-  (:func:`sparself.synthesis.plan.candidate_poses`); the gaps and ends where they spread most are where the
-  reconstruction depends most on single photos, and there views are planned, at a gap's midpoint
-  (:func:`~sparself.synthesis.plan.pick_poses`: inside a gap the spread follows how far a pose is from the
-  missing input, not the final fit's weakness).
+* **Look before synthesizing** (:func:`weakest_plan`): two fits on complementary halves of the inputs (every
+  other view) are rendered at candidate poses (:func:`sparself.synthesis.plan.candidate_poses`); the gaps and
+  ends where they disagree most are where the reconstruction is weakest, and there views are planned, at
+  a gap's midpoint (:func:`~sparself.synthesis.plan.pick_poses`: inside a gap the halves' disagreement
+  follows how far a pose is from each half's inputs, not the final fit's weakness).
 * **Keep only what pays** (:func:`self_check`): in each fold of inputs held back together
   (:mod:`sparself.evaluation.folds`), the fold's views are synthesized again without those photos, and the
   reconstructor is fitted on the rest without and with them at each synthetic-frame weight. A view's gain is
@@ -95,7 +94,7 @@ from sparself.evaluation.weighting import (
 from sparself.model.fixer import Fixer
 from sparself.recon import Renderer, backend
 from sparself.recon.pool import FitPool, Fitter, side_by_side
-from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses
+from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, weakness_decides
 from sparself.synthesis.synthesize import Synthesized
 
 log = logging.getLogger(__name__)
@@ -116,7 +115,7 @@ class SelfCheckConfig:
     )
     plan_mode: Literal["auto", "weak", "paper"] = option(
         "auto",
-        "where views go: where fits without some of the inputs (the check's folds) spread most (weak), or the "
+        "where views go: where fits on complementary halves of the inputs disagree most (weak), or the "
         "paper's midpoints and extrapolations (paper; always with --recon none); auto: paper for the NeRF "
         "(measured: +0.85 dB against +0.02 with weak at 25 llff_bird inputs, +0.97 against +0.40 on samples/bird), "
         "weak for the 3DGS and the MPI",
@@ -268,10 +267,9 @@ def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
 
 
 def remembering(fits: FitMany) -> FitMany:
-    """``fits`` that fits a scene of real photos only once, by its frames' names and weights (the folds'
-    bases, which plan the views and score them, and the reference recur with every network seed of one
-    capture; the fits are seeded). Scenes with synthesized frames are always fitted. Use one per capture and
-    check size."""
+    """``fits`` that fits a scene of real photos only once, by its frames' names and weights (the halves, the
+    folds' bases and the reference recur with every network seed of one capture; the fits are seeded).
+    Scenes with synthesized frames are always fitted. Use one per capture and check size."""
     memo: dict[tuple, Renderer] = {}
 
     def key(sc: Scene) -> tuple | None:
@@ -313,21 +311,26 @@ def at_check_size(scene: Scene, cfg: SelfCheckConfig) -> Scene:
 
 
 def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap) -> list[Frame]:
-    """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where the fits of :func:`spread_scenes` spread
-    most (mean absolute deviation of their renders from their mean over the poses of
-    :func:`sparself.synthesis.plan.candidate_poses` in the gap or past the end that are measured by one of the
-    self-check's folds (:func:`measuring_fold`), when there are any), placed as
-    :func:`sparself.synthesis.plan.pick_poses` says."""
+    """``plan.n_mid`` gaps and ``plan.n_extra`` extrapolations where two fits on complementary halves of
+    ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
+    their renders over the poses of :func:`sparself.synthesis.plan.candidate_poses` in the gap or past the
+    end that are measured by one of the self-check's folds (:func:`measuring_fold`), when there are any),
+    placed as :func:`sparself.synthesis.plan.pick_poses` says."""
     cands = candidate_poses(inputs, replace(plan, order="capture"))
     ok = measuring_fold(inputs, [c.frame for c in cands], gap) >= 0
     if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
         cands = [c for c, k in zip(cands, ok) if k]
+    if not weakness_decides(cands, plan):  # a view in every gap, the ends visited alike: nothing to rank
+        picked = pick_poses(cands, np.zeros(len(cands)), plan)
+        log.info("plan: %d views, one in every gap and as many past each end (no fits needed)", len(picked))
+        return picked
     frames = [c.frame for c in cands]
-    rendered = np.stack([renders(r, inputs, frames) for r in fits(spread_scenes(inputs, gap))])
-    weak = np.abs(rendered - rendered.mean(axis=0)).mean(axis=(0, 2, 3, 4))
+    halves = fits([inputs.subset(range(k, len(inputs), 2)) for k in (0, 1)])
+    a, b = (renders(r, inputs, frames) for r in halves)
+    weak = np.abs(a - b).mean(axis=(1, 2, 3))
     picked = pick_poses(cands, weak, plan)
     log.info(
-        "plan: %d views in the gaps and ends where fits without some inputs spread most (at them %.4f .. %.4f; "
+        "plan: %d views in the gaps and ends where halves of the inputs disagree most (at them %.4f .. %.4f; "
         "candidates %.4f .. %.4f)",
         len(picked),
         min(weak[frames.index(f)] for f in picked),
@@ -336,20 +339,6 @@ def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap) -> li
         weak.max(),
     )
     return picked
-
-
-def spread_scenes(inputs: Scene, gap: Gap) -> list[Scene]:
-    """The scenes whose fits' spread says where the reconstruction of ``inputs`` is weak: the inputs without
-    each of the self-check's folds that hold back no end (:func:`check_folds`), whose fits the check makes
-    anyway, so planning costs no fit of its own; with fewer than two such folds, the inputs themselves too.
-
-    A fit without an input renders the gaps beside it worse than a fit with it, by as much as the
-    reconstruction there depends on that one photo: where two fits lacking different inputs spread most, one
-    photo more or less changes the reconstruction most, and that is where a view can add most."""
-    n = len(inputs)
-    held = [h for h in check_folds(n, gap) if 0 not in h and n - 1 not in h]
-    scenes = [validation_split(inputs, h)[1] for h in held]
-    return scenes if len(scenes) >= 2 else scenes + [inputs]
 
 
 def informative_confidence(
@@ -997,7 +986,7 @@ def checked_views(
         with FitPool(check_workers(cfg)) as pool:
             second = other_seed(cfg)
             other = None if second is None else check_fits(second, pool)
-            fits = remembering(check_fits(cfg, pool))  # the folds' bases plan the views, then score them
+            fits = remembering(check_fits(cfg, pool))  # e.g. the confirmation's bases, when a second way decides
             return checked_views(inputs, paper, plan, synth, cfg, sources, fits, other)
     mode = plan_of(cfg)
     targets = weakest_plan(at_check_size(inputs, cfg), plan, fits, cfg.gain_gap) if mode == "weak" else paper

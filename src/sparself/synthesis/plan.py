@@ -227,6 +227,14 @@ def pick_poses(candidates: list[Candidate], weakness: np.ndarray, cfg: PlanConfi
     return sorted((candidates[i].frame for i in picked), key=lambda f: f.index)
 
 
+def weakness_decides(candidates: list[Candidate], cfg: PlanConfig) -> bool:
+    """Whether :func:`pick_poses` can pick differently for another weakness: not when ``cfg.n_mid`` covers
+    every gap among ``candidates`` and ``cfg.n_extra`` visits each end they reach equally often."""
+    gaps = {c.slot for c in candidates if not c.beyond}
+    ends = {c.slot for c in candidates if c.beyond}
+    return len(gaps) > int(cfg.n_mid) or (bool(ends) and int(cfg.n_extra) % len(ends) != 0)
+
+
 def _nearest_t(candidates: list[Candidate], among: list[int], t: float) -> int:
     return min(among, key=lambda i: abs(candidates[i].t - t))
 
