@@ -870,3 +870,19 @@ def test_the_automatic_plan_is_the_papers_for_the_nerf_and_the_weak_one_otherwis
         assert selfcheck.plan_of(cfg) == want
         targets, _, _ = selfcheck.checked_views(scene, paper, PLAN, _exact, cfg, fits=lambda scenes: [])
         assert targets == (paper if want == "paper" else weak) and seen[-1] == (targets, want)
+
+
+def test_densify_fits_a_scene_of_real_photos_once_per_check(monkeypatch):
+    """A scene of real photos the check asks for twice (the confirmation's bases, when a second way of
+    weighting the pixels decides) is fitted once."""
+    from sparself.evaluation import selfcheck
+
+    fitted = []
+    monkeypatch.setattr(
+        selfcheck, "check_fits", lambda cfg, pool=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes]
+    )
+    monkeypatch.setattr(selfcheck, "self_check", lambda inputs, *a: [a[5]([inputs.subset(range(3))])[0] for _ in "ab"])
+    scene = _line(6)
+    planned = plan_poses(scene, PLAN)
+    _, both, _ = selfcheck.checked_views(scene, planned, PLAN, _exact, replace(MPI, plan_mode="paper"))
+    assert both[0] is both[1] and len(fitted) == 1
