@@ -315,7 +315,8 @@ def weakest_plan(inputs: Scene, plan: PlanConfig, fits: FitMany, gap: Gap) -> li
     ``inputs`` (even and odd positions; a scene in path order) disagree most (mean absolute difference of
     their renders over the poses of :func:`sparself.synthesis.plan.candidate_poses` in the gap or past the
     end that are measured by one of the self-check's folds (:func:`measuring_fold`), when there are any),
-    placed as :func:`sparself.synthesis.plan.pick_poses` says."""
+    placed as :func:`sparself.synthesis.plan.pick_poses` says; without fitting when no disagreement could
+    move the picks (:func:`~sparself.synthesis.plan.weakness_decides`)."""
     cands = candidate_poses(inputs, replace(plan, order="capture"))
     ok = measuring_fold(inputs, [c.frame for c in cands], gap) >= 0
     if ok.any():  # else every view is planned unchecked, and the self-check says it keeps none
