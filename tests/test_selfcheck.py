@@ -565,7 +565,7 @@ def test_a_view_past_an_end_is_stood_in_for_by_the_same_extrapolation_one_input_
 
 def test_the_weak_plan_fits_nothing_when_no_weakness_could_change_it():
     """A view for every gap and one past each end: any weakness picks the same poses, so nothing is fitted;
-    with one gap left out (or one end visited twice) the weakness decides."""
+    with a gap left without a view (or one end visited more often than the other) the weakness decides."""
 
     def no_fits(scenes):
         raise AssertionError("the plan fitted a reconstruction it did not need")
