@@ -474,11 +474,12 @@ def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from
     assert c.confirmed
 
 
-def test_the_confirmation_runs_by_default_for_the_3dgs_only_and_as_asked_otherwise():
+def test_the_confirmation_runs_by_default_for_the_3dgs_and_the_nerf_and_as_asked_otherwise():
     from sparself.evaluation.selfcheck import confirm_on
 
-    assert confirm_on(SelfCheckConfig(recon="3dgs")) and not confirm_on(SelfCheckConfig(recon="mpi"))
-    assert not confirm_on(SelfCheckConfig(recon="3dgs", confirm=False)) and confirm_on(replace(MPI, confirm=True))
+    assert confirm_on(SelfCheckConfig(recon="3dgs")) and confirm_on(SelfCheckConfig(recon="nerf"))
+    assert not confirm_on(SelfCheckConfig(recon="mpi"))
+    assert not confirm_on(SelfCheckConfig(recon="nerf", confirm=False)) and confirm_on(replace(MPI, confirm=True))
 
 
 def test_the_pixel_weights_are_chosen_per_capture_by_default_for_the_3dgs_only_and_as_asked_otherwise():

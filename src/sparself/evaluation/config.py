@@ -101,7 +101,7 @@ class EvalConfig:
     check_confirm: bool | None = option(
         None,
         "the checked row's self-check tests its kept views on the input photos no fold held back before keeping "
-        "them (densify --confirm; auto: for the 3DGS)",
+        "them (densify --confirm; auto: for the 3DGS and the NeRF)",
     )
     check_max_photo_loss: float | None = option(
         1.0,

@@ -34,11 +34,12 @@ poses it can be: the check measures with the error of its folds, whose gaps are 
   views' mean gain in gaps two and three wide is extrapolated to one (linear in the log of the width), and
   when that is not above ``min_gain`` no view between the inputs is kept (those past the ends keep their fold's
   decision: there the final fit lacks the photos as the check's does).
-* **Confirm on other photos** (``confirm``; by default for the 3DGS): the views are kept on the folds' held-back
-  photos, so their gain there is chosen as much as measured. Two more folds hold back the interior photos
-  no fold held back (:func:`~sparself.evaluation.folds.confirm_folds`); the kept views, synthesized again
-  without those photos, are fitted beside the rest, and none is kept when there they lose on the mean or one
-  photo loses more than ``max_photo_loss``: a view that spoils the fit far from the photos it was judged on.
+* **Confirm on other photos** (``confirm``; by default for the 3DGS and the NeRF): the views are kept on the
+  folds' held-back photos, so their gain there is chosen as much as measured. Two more folds hold back the
+  interior photos no fold held back (:func:`~sparself.evaluation.folds.confirm_folds`); the kept views,
+  synthesized again without those photos, are fitted beside the rest, and none is kept when there they lose on
+  the mean or one photo loses more than ``max_photo_loss``: a view that spoils the fit far from the photos it
+  was judged on.
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
@@ -199,7 +200,8 @@ class SelfCheckConfig:
         "views synthesized again without their photos), and keep none when there the fit with them loses on "
         "the mean or any photo loses more than max_photo_loss: the views were chosen on the other photos; "
         "auto: for the 3DGS (measured: it kept llff_bird 25 at N where two seeds lost 1.2 dB, and 9 inputs at "
-        "+1.69 dB as without it); off for the others (the MPI on llff_bird: every seed confirmed, nothing changed)",
+        "+1.69 dB as without it) and the NeRF (it refused the dinoSparseRing seed that lost 0.06 dB and confirmed "
+        "every llff_bird seed); off for the MPI (it refused the +0.09 dB of 25 llff_bird inputs)",
     )
     seed_noise: bool = option(
         False,
@@ -397,8 +399,8 @@ def weights_of(cfg: SelfCheckConfig) -> tuple[float, ...]:
 
 def confirm_on(cfg: SelfCheckConfig) -> bool:
     """Whether the kept views are confirmed on the photos no fold held back (``cfg.confirm``; auto: for the
-    3DGS only, where it was measured)."""
-    return cfg.confirm if cfg.confirm is not None else cfg.recon == "3dgs"
+    3DGS and the NeRF, where it kept every capture at or above N)."""
+    return cfg.confirm if cfg.confirm is not None else cfg.recon in ("3dgs", "nerf")
 
 
 def pixel_weights_of(cfg: SelfCheckConfig) -> Literal["choose", "confidence", "uniform"]:
