@@ -287,6 +287,22 @@ def test_large_images_find_the_same_pairs_in_float64(monkeypatch):
     assert torch.equal(small.px.double(), large.px) and torch.equal(small.py.double(), large.py)
 
 
+def test_images_too_large_for_int16_pixel_numbers_find_the_same_pairs_in_the_same_order(monkeypatch):
+    from sparself.recon import splat
+
+    cam = Camera.pinhole(48, 36, 40.0)
+    g = _random_gaussians(150, 0)
+    _, p = render_gaussians(g, Pose.from_center(np.array([1.0, 0, 0, 0]), np.zeros(3)), cam, torch.zeros(3), 1)
+    small = splat._pixel_pairs(p, cam.width, cam.height)
+    monkeypatch.setattr(splat, "INT16_PIXELS", 0)  # as if the image had more than 2^15 pixels
+    large = splat._pixel_pairs(p, cam.width, cam.height)
+    assert len(small.gauss) > 1000 and bool((small.pix[1:] >= small.pix[:-1]).all())
+    assert torch.equal(small.gauss, large.gauss) and torch.equal(small.pix, large.pix)
+    # within a pixel, front to back: the Projected's rows are in depth order
+    same = small.pix[1:] == small.pix[:-1]
+    assert bool((small.gauss[1:][same] > small.gauss[:-1][same]).all())
+
+
 def _cpu_drawn_gsplat():
     """A stand-in for the gsplat package: ``rasterization`` draws with the CPU path and answers as gsplat's
     does with packed=False: (1, H, W, 3) images, means2d and radii over all N Gaussians, (1, N, 2) each."""

@@ -43,6 +43,7 @@ ALPHA_MIN, ALPHA_MAX, T_MIN = 1.0 / 255.0, 0.999, 1e-4
 EPS2D = 0.3  # px^2 low-pass added to every 2D covariance
 NEAR_PLANE = 0.01
 EXACT_FLOAT32 = 1 << 24  # whole numbers up to here are exact in float32
+INT16_PIXELS = 1 << 15  # images of at most this many pixels number them in int16
 BACKEND = "cpu: sparself.recon.splat (plain torch)"
 
 
@@ -186,10 +187,24 @@ def project(g: Gaussians, w2c: torch.Tensor, K: torch.Tensor, width: int, height
 
 def _alpha(p_mean, p_conic, p_opac, px, py):
     """alpha of Gaussians at pixel centres (broadcast), 0 where under 1/255 (gsplat's rule)."""
-    dx, dy = p_mean[..., 0] - px, p_mean[..., 1] - py
-    sigma = 0.5 * (p_conic[..., 0] * dx * dx + p_conic[..., 2] * dy * dy) + p_conic[..., 1] * dx * dy
-    alpha = (p_opac * torch.exp(-sigma)).clamp_max(ALPHA_MAX)
+    return _alpha_of(p_mean[..., 0], p_mean[..., 1], p_conic[..., 0], p_conic[..., 1], p_conic[..., 2], p_opac, px, py)
+
+
+def _alpha_of(mx, my, ca, cb, cc, opac, px, py):
+    """:func:`_alpha` from the columns of the means (x, y) and conics (a, b, c) apart."""
+    dx, dy = mx - px, my - py
+    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+    alpha = (opac * torch.exp(-sigma)).clamp_max(ALPHA_MAX)
     return torch.where((sigma >= 0) & (alpha >= ALPHA_MIN), alpha, torch.zeros_like(alpha))
+
+
+def _columns_at(means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, at: torch.Tensor) -> list:
+    """[mx, my, ca, cb, cc, opacity], each (P,) at rows ``at`` (P,) of means2d (M, 2), conics (M, 3) and
+    opacities (M,), gathered column by column: contiguous columns make the pair arithmetic and its backward
+    a sixth faster than slices of one (P, k) gather, with the same numbers. index_select, not [at]: its
+    backward (index_add) is deterministic on the CPU, accumulate-indexing is not."""
+    cols = (means2d[:, 0], means2d[:, 1], conics[:, 0], conics[:, 1], conics[:, 2], opacities)
+    return [c.contiguous().index_select(0, at) for c in cols]
 
 
 def rasterize_reference(
@@ -254,14 +269,14 @@ def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26
         row = torch.floor((local + 0.5) / nxg)  # the +0.5 keeps the quotient away from whole numbers
         px = x0.index_select(0, gauss) + (local - row * nxg) + 0.5
         py = y0.index_select(0, gauss) + row + 0.5
-        a = _alpha(
-            m.index_select(0, gauss), p.conics.index_select(0, gauss), p.opacities.index_select(0, gauss), px, py
-        )
+        a = _alpha_of(*_columns_at(m, p.conics, p.opacities, gauss), px, py)
         keep = torch.nonzero(a > 0).squeeze(1)
         px, py = px.index_select(0, keep), py.index_select(0, keep)
         pix = ((py - 0.5) * width + (px - 0.5)).int()
-        # Gaussians are in depth order: a stable sort by pixel keeps it
-        sort = torch.sort(pix, stable=True).indices
+        # Gaussians are in depth order: a stable sort by pixel keeps it (of int16 keys where they fit: a
+        # radix sort, 2.4x faster than of int32 ones; the order is the same)
+        key = pix.to(torch.int16) if width * height <= INT16_PIXELS else pix
+        sort = torch.sort(key, stable=True).indices
         at = keep.index_select(0, sort)
         # int64 out: the backward of an index_select by int32 indices runs at half the speed
         gauss, pix = gauss.index_select(0, at).long(), pix.index_select(0, sort).long()
@@ -275,14 +290,7 @@ def rasterize(p: Projected, width: int, height: int, background: torch.Tensor) -
     pairs = _pixel_pairs(p, width, height)
     gauss, pix = pairs.gauss, pairs.pix
     n_pix = width * height
-    # index_select, not [gauss]: its backward (index_add) is deterministic on CPU, accumulate-indexing is not
-    alpha = _alpha(
-        p.means2d.index_select(0, gauss),
-        p.conics.index_select(0, gauss),
-        p.opacities.index_select(0, gauss),
-        pairs.px.to(dt),
-        pairs.py.to(dt),
-    )
+    alpha = _alpha_of(*_columns_at(p.means2d, p.conics, p.opacities, gauss), pairs.px.to(dt), pairs.py.to(dt))
     log1m = torch.log1p(-alpha).double()  # transmittance in log space: a segmented cumsum per pixel
     incl = torch.cumsum(log1m, 0)
     first = torch.ones_like(pix, dtype=torch.bool)
