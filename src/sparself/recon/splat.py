@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -187,18 +187,23 @@ def project(g: Gaussians, w2c: torch.Tensor, K: torch.Tensor, width: int, height
 
 def _alpha(p_mean, p_conic, p_opac, px, py):
     """alpha of Gaussians at pixel centres (broadcast), 0 where under 1/255 (gsplat's rule)."""
-    return _alpha_of(p_mean[..., 0], p_mean[..., 1], p_conic[..., 0], p_conic[..., 1], p_conic[..., 2], p_opac, px, py)
+    return _alpha_of(
+        (p_mean[..., 0], p_mean[..., 1], p_conic[..., 0], p_conic[..., 1], p_conic[..., 2], p_opac), px, py
+    )
 
 
-def _alpha_of(mx, my, ca, cb, cc, opac, px, py):
-    """:func:`_alpha` from the columns of the means (x, y) and conics (a, b, c) apart."""
+def _alpha_of(columns: Sequence[torch.Tensor], px: torch.Tensor, py: torch.Tensor) -> torch.Tensor:
+    """:func:`_alpha` from the columns apart: (mx, my, ca, cb, cc, opacity) of the means, conics and opacities."""
+    mx, my, ca, cb, cc, opac = columns
     dx, dy = mx - px, my - py
     sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
     alpha = (opac * torch.exp(-sigma)).clamp_max(ALPHA_MAX)
     return torch.where((sigma >= 0) & (alpha >= ALPHA_MIN), alpha, torch.zeros_like(alpha))
 
 
-def _columns_at(means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, at: torch.Tensor) -> list:
+def _columns_at(
+    means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, at: torch.Tensor
+) -> list[torch.Tensor]:
     """[mx, my, ca, cb, cc, opacity], each (P,) at rows ``at`` (P,) of means2d (M, 2), conics (M, 3) and
     opacities (M,), gathered column by column: contiguous columns make the pair arithmetic and its backward
     a sixth faster than slices of one (P, k) gather, with the same numbers. index_select, not [at]: its
@@ -269,7 +274,7 @@ def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26
         row = torch.floor((local + 0.5) / nxg)  # the +0.5 keeps the quotient away from whole numbers
         px = x0.index_select(0, gauss) + (local - row * nxg) + 0.5
         py = y0.index_select(0, gauss) + row + 0.5
-        a = _alpha_of(*_columns_at(m, p.conics, p.opacities, gauss), px, py)
+        a = _alpha_of(_columns_at(m, p.conics, p.opacities, gauss), px, py)
         keep = torch.nonzero(a > 0).squeeze(1)
         px, py = px.index_select(0, keep), py.index_select(0, keep)
         pix = ((py - 0.5) * width + (px - 0.5)).int()
@@ -290,7 +295,7 @@ def rasterize(p: Projected, width: int, height: int, background: torch.Tensor) -
     pairs = _pixel_pairs(p, width, height)
     gauss, pix = pairs.gauss, pairs.pix
     n_pix = width * height
-    alpha = _alpha_of(*_columns_at(p.means2d, p.conics, p.opacities, gauss), pairs.px.to(dt), pairs.py.to(dt))
+    alpha = _alpha_of(_columns_at(p.means2d, p.conics, p.opacities, gauss), pairs.px.to(dt), pairs.py.to(dt))
     log1m = torch.log1p(-alpha).double()  # transmittance in log space: a segmented cumsum per pixel
     incl = torch.cumsum(log1m, 0)
     first = torch.ones_like(pix, dtype=torch.bool)
