@@ -205,8 +205,8 @@ def _columns_at(
     means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, at: torch.Tensor
 ) -> list[torch.Tensor]:
     """[mx, my, ca, cb, cc, opacity], each (P,) at rows ``at`` (P,) of means2d (M, 2), conics (M, 3) and
-    opacities (M,), gathered column by column: contiguous columns make the pair arithmetic and its backward
-    a sixth faster than slices of one (P, k) gather, with the same numbers. index_select, not [at]: its
+    opacities (M,), gathered column by column: contiguous columns made a 64 px fit about 12 % faster than
+    slices of one (P, k) gather, with the same numbers. index_select, not [at]: its
     backward (index_add) is deterministic on the CPU, accumulate-indexing is not."""
     cols = (means2d[:, 0], means2d[:, 1], conics[:, 0], conics[:, 1], conics[:, 2], opacities)
     return [c.contiguous().index_select(0, at) for c in cols]
