@@ -3,7 +3,7 @@
 #               -> synthesize) -> demo_out/
 #   make evaluate  held-out evaluation of the sample, quick settings -> eval_out/
 #   make lint   formatting, lint and type check: ruff format --check, ruff check, mypy (pyproject.toml)
-#   make test   run the test suite: .venv/bin/python -m pytest tests
+#   make test   run the test suite on every core (at most 4): .venv/bin/python -m pytest tests -n auto ...
 #   make bench  speed and memory table: .venv/bin/python benchmarks/run.py
 #   make clean  remove demo output and caches (keeps .venv; `make distclean` removes it too)
 
@@ -55,7 +55,7 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 test: $(STAMP)
-	$(PY) -m pytest tests --durations=10
+	$(PY) -m pytest tests -n auto --maxprocesses 4 --dist worksteal --durations=10
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py
