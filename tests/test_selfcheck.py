@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -122,7 +122,7 @@ def test_confirmed_views_are_written_and_unconfirmed_ones_are_not(tmp_path, monk
     assert not set(c.photos) & set(rec.validation)  # tested on photos no fold held back
     assert rec.kept and [f.name for f in dense.frames if f.synthetic] == list(rec.kept) and "confirmed" in rec.reason
     failed = Confirmation(c.photos, (0.5,) + (-1.5,) * (len(c.photos) - 1), False)
-    monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: failed)
+    monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: (failed, a[3]))
     dense = _densify(tmp_path / "b", monkeypatch, _exact, check)
     rec = read_selfcheck(tmp_path / "b" / "out" / "scene")
     assert not any(f.synthetic for f in dense.frames) and rec.kept == () and rec.psnr_kept is None
@@ -290,7 +290,7 @@ def test_chosen_pixel_weights_fall_back_to_the_other_way_when_the_better_keeps_n
 
     def confirmation(inputs, small, planned, keep, w, synth, fits, fix, c):
         gains = (-0.5, -2.0) if c.pixel_weights == "uniform" else (0.5, 0.25)
-        return Confirmation(("a", "b"), gains, c.pixel_weights != "uniform") if keep.any() else None
+        return (Confirmation(("a", "b"), gains, c.pixel_weights != "uniform") if keep.any() else None), keep
 
     monkeypatch.setattr(selfcheck, "_pixel_weighted", uniform_first)
     monkeypatch.setattr(selfcheck, "_confirmation", confirmation)
@@ -308,7 +308,7 @@ def test_chosen_pixel_weights_fall_back_to_the_other_way_when_the_better_keeps_n
     }
     assert "not confirmed (-1.25 dB on the mean, worst -2.00)" in rec.reason
     # when neither way keeps a view, the record is the first way's
-    monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: Confirmation(("a",), (-0.5,), False))
+    monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: (Confirmation(("a",), (-0.5,), False), a[3]))
     none = selfcheck.self_check(scene, planned, synth, synth(scene, planned), cfg, "paper")
     assert not none.frames and none.record.pixel_weights == "uniform" and not none.record.confirmation.confirmed
 
@@ -430,9 +430,10 @@ def test_the_confirmation_holds_back_every_interior_photo_the_folds_leave_and_ne
     assert len(held) <= 2 and all(abs(a - b) > 1 for f in held for a in f for b in f if a != b)
 
 
-def _confirming(monkeypatch, psnr_with: dict[int, float], cfg: SelfCheckConfig):
+def _confirming(monkeypatch, psnr_with, cfg: SelfCheckConfig, kept=(0, 2)):
     """The kept views' confirmation on a 12-input line, every fit without views at 20 dB at every photo and
-    each with them at ``psnr_with`` (by photo position): (the confirmation, the photos each synthesis saw)."""
+    each with views at ``psnr_with(photo position, the names of its synthetic frames)``: (the confirmation,
+    the views it leaves kept, the photos each synthesis saw, the scene, the plan)."""
     from sparself.evaluation import selfcheck
 
     scene = _line(12)
@@ -446,32 +447,70 @@ def _confirming(monkeypatch, psnr_with: dict[int, float], cfg: SelfCheckConfig):
         return np.zeros((len(targets), cam.height, cam.width, 3), np.float32)
 
     def fits(scenes):
-        return ["with" if any(f.synthetic for f in sc.frames) else "base" for sc in scenes]
+        return [frozenset(f.name for f in sc.frames if f.synthetic) for sc in scenes]
 
     def psnr(small, fit, held):
-        return np.array([psnr_with.get(p, 20.0) if fit == "with" else 20.0 for p in held])
+        return np.array([psnr_with(p, fit) if fit else 20.0 for p in held])
 
     monkeypatch.setattr(selfcheck, "renders", lambda r, sc, frames: np.zeros((len(frames), 64, 96, 3), np.float32))
     monkeypatch.setattr(selfcheck, "held_back_psnr", psnr)
     keep = np.zeros(len(planned), bool)
-    keep[[0, 2]] = True
-    return selfcheck._confirmation(scene, small, planned, keep, 1.0, synth, fits, None, cfg), seen, scene
+    keep[list(kept)] = True
+    c, left = selfcheck._confirmation(scene, small, planned, keep, 1.0, synth, fits, None, cfg)
+    return c, left, seen, scene, planned
 
 
 def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from_them(monkeypatch):
     cfg = SelfCheckConfig(pixel_weights="uniform", max_photo_loss=1.0, check_size=96)
     held = confirm_folds(12, "own")  # [[2, 6], [4, 8]]
     gains = {2: 20.5, 6: 20.5, 4: 19.6, 8: 20.3}  # +0.5, +0.5, -0.4, +0.3 dB
-    c, seen, scene = _confirming(monkeypatch, gains, cfg)
+
+    def at(table):
+        return lambda p, fit: table.get(p, 20.0)
+
+    c, left, seen, scene, _ = _confirming(monkeypatch, at(gains), cfg)
     assert c.photos == tuple(scene.frames[p].name for p in sum(held, []))
-    assert c.gains == pytest.approx([0.5, 0.5, -0.4, 0.3]) and c.confirmed
+    assert c.gains == pytest.approx([0.5, 0.5, -0.4, 0.3]) and c.confirmed and c.dropped == ()
     assert len(seen) == 2 and all(not seen[k] & {scene.frames[p].name for p in h} for k, h in enumerate(held))
-    c, _, _ = _confirming(monkeypatch, {**gains, 8: 18.5}, cfg)  # one photo loses 1.5 dB: more than the limit
-    assert not c.confirmed and min(c.gains) == pytest.approx(-1.5)
-    c, _, _ = _confirming(monkeypatch, {**gains, 8: 18.5}, replace(cfg, max_photo_loss=None))  # mean -0.05 dB
+    c, _, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), cfg)  # one photo loses 1.5 dB: more than the limit
+    assert not c.confirmed and min(c.gains) == pytest.approx(-1.5) and c.dropped == ()  # no kept view beside it
+    c, _, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), replace(cfg, max_photo_loss=None))  # mean -0.05
     assert not c.confirmed
-    c, _, _ = _confirming(monkeypatch, {**gains, 8: 19.5}, replace(cfg, max_photo_loss=None))  # mean +0.2 dB
+    c, _, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), replace(cfg, max_photo_loss=None))  # mean +0.2
     assert c.confirmed
+
+
+def test_a_photo_that_loses_too_much_drops_the_views_beside_it_and_the_rest_are_tested_again(monkeypatch):
+    from sparself.evaluation import selfcheck
+    from sparself.evaluation.selfcheck import at_check_size
+
+    cfg = SelfCheckConfig(pixel_weights="uniform", max_photo_loss=1.0, check_size=96)
+    scene = _line(12)
+    planned = plan_poses(scene, PLAN)
+    beside = np.flatnonzero(checkable(at_check_size(scene, cfg), planned, "own", [6]))  # between inputs 5 and 7
+    far = np.flatnonzero(~checkable(at_check_size(scene, cfg), planned, "own", [2, 4, 6, 8]))
+    kept = (int(beside[0]), int(far[0]), int(far[1]))
+    culprit = planned[kept[0]].name
+
+    def psnr(p, fit):  # photo 6 loses 1.5 dB only with the view beside it; the others gain 0.5
+        return 18.5 if p == 6 and culprit in fit else 20.5
+
+    c, left, _, _, _ = _confirming(monkeypatch, psnr, cfg, kept)
+    assert c.confirmed and c.dropped == (culprit,) and c.gains == pytest.approx([0.5] * 4)
+    assert c.gains_before == pytest.approx([0.5, -1.5, 0.5, 0.5])  # photos 2, 6, 4, 8
+    assert list(np.flatnonzero(left)) == sorted(kept[1:])
+    assert Confirmation.from_json(json.loads(json.dumps(asdict(c)))) == c
+    reason = selfcheck._confirm_reason(c, 3, "3dgs", "kept")
+    assert (
+        "confirmed on 4 input photos no fold held back (+0.50 dB on the mean, worst +0.50) after dropping 1 of"
+        in reason
+    )
+    for off in (replace(cfg, confirm_prune=False), replace(cfg, recon="nerf")):  # the NeRF's default: off
+        c, left, _, _, _ = _confirming(monkeypatch, psnr, off, kept)
+        assert not c.confirmed and c.dropped == () and left.sum() == 3
+    # when the photo still loses without the views beside it, the rest are not confirmed either
+    c, _, _, _, _ = _confirming(monkeypatch, lambda p, fit: 18.5 if p == 6 else 20.5, cfg, kept)
+    assert not c.confirmed and c.dropped == (culprit,) and min(c.gains) == pytest.approx(-1.5)
 
 
 def test_the_confirmation_runs_by_default_for_the_3dgs_and_the_nerf_and_as_asked_otherwise():

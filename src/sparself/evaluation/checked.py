@@ -68,6 +68,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         keep=ev.cfg.check_keep,
         gap_trend=ev.cfg.check_gap_trend,
         confirm=ev.cfg.check_confirm,
+        confirm_prune=ev.cfg.check_confirm_prune,
         max_photo_loss=ev.cfg.check_max_photo_loss,
         ends_context=ev.cfg.check_ends_context,
     )

@@ -103,6 +103,11 @@ class EvalConfig:
         "the checked row's self-check tests its kept views on the input photos no fold held back before keeping "
         "them (densify --confirm; auto: for the 3DGS and the NeRF)",
     )
+    check_confirm_prune: bool | None = option(
+        None,
+        "the checked row's self-check drops the kept views beside a confirmation photo that loses too much and "
+        "tests the rest once more (densify --confirm-prune; auto: for the 3DGS)",
+    )
     check_max_photo_loss: float | None = option(
         1.0,
         "dB a held-back photo of the checked row's self-check may lose before a fold's views go (densify "

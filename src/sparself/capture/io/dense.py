@@ -105,15 +105,25 @@ class GapTrend:
 class Confirmation:
     """The kept views tested together on the input photos the check's folds never hold back (``sparself.json``,
     in ``selfcheck``): those photos, each photo's dB change from the fit without views to the fit with the kept
-    views (synthesized without the held-back photos), and whether that confirmed them."""
+    views (synthesized without the held-back photos), and whether that confirmed them. When a photo lost too
+    much with every kept view, ``dropped`` names the views beside it that were dropped before the test that
+    ``gains`` records, and ``gains_before`` holds the first test's changes (both empty: tested once)."""
 
     photos: tuple[str, ...]
     gains: tuple[float, ...]
     confirmed: bool
+    dropped: tuple[str, ...] = ()
+    gains_before: tuple[float, ...] = ()
 
     @classmethod
     def from_json(cls, doc: dict) -> "Confirmation":
-        return cls(tuple(map(str, doc["photos"])), tuple(map(float, doc["gains"])), bool(doc["confirmed"]))
+        return cls(
+            tuple(map(str, doc["photos"])),
+            tuple(map(float, doc["gains"])),
+            bool(doc["confirmed"]),
+            tuple(map(str, doc.get("dropped", ()))),
+            tuple(map(float, doc.get("gains_before", ()))),
+        )
 
 
 @dataclass(frozen=True)
