@@ -771,7 +771,7 @@ def _confirmation(
     """The kept views tested together on the photos no fold held back (:func:`confirm_folds`): per fold, they
     are synthesized again without its photos (and fixed as the written ones are), and the inputs without those
     photos are fitted without and with them at weight ``w``. Confirmed when the change at those photos is not
-    negative on the mean and no photo loses more than ``cfg.max_photo_loss``. With ``cfg.confirm_prune``, the
+    negative on the mean and no photo loses more than ``cfg.max_photo_loss``. When :func:`prune_on`, the
     views inside the gap of a photo that loses more are dropped and the rest tested once more on the same
     photos (:func:`_pruned`). Returns the confirmation (None when no view is kept or there is no such photo)
     and the views it leaves kept."""

@@ -133,8 +133,9 @@ class SelfCheck:
     recon: the reconstructor the views were checked with; plan: how the poses were planned (weak, paper);
     validation: the held-back input photos scored, fold after fold; psnr_without: their mean PSNR fitted
     without synthesized views; psnr_by_weight: (synthetic-frame weight, mean PSNR) with every measured view
-    (each fold's fits with its own views); psnr_kept: with the kept views only (None: none kept); weight: the
-    chosen synthetic-frame weight (None: no view kept); views: every planned view; reason: the decision in
+    (each fold's fits with its own views); psnr_kept: with the kept views only, as the folds kept them before
+    the confirmation dropped any (None: none kept); weight: the chosen synthetic-frame weight (None: no view
+    kept); views: every planned view; reason: the decision in
     words; fixer: the fixer's test (None: not tried); psnr_other_seed: the held-back photos' mean PSNR fitted
     without views at a second seed (None: not fitted), which bounds how much the fit's seed alone moves them;
     gap_trend: the interior views' gain against the width of their gap (None: not measured); confirmation: the
