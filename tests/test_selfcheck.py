@@ -121,12 +121,26 @@ def test_confirmed_views_are_written_and_unconfirmed_ones_are_not(tmp_path, monk
     assert c is not None and c.confirmed and len(c.gains) == len(c.photos) > 1  # exact views lose nowhere
     assert not set(c.photos) & set(rec.validation)  # tested on photos no fold held back
     assert rec.kept and [f.name for f in dense.frames if f.synthetic] == list(rec.kept) and "confirmed" in rec.reason
+    first = rec.kept
     failed = Confirmation(c.photos, (0.5,) + (-1.5,) * (len(c.photos) - 1), False)
     monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: (failed, a[3]))
     dense = _densify(tmp_path / "b", monkeypatch, _exact, check)
     rec = read_selfcheck(tmp_path / "b" / "out" / "scene")
     assert not any(f.synthetic for f in dense.frames) and rec.kept == () and rec.psnr_kept is None
     assert rec.confirmation == failed and "not confirmed" in rec.reason and "without synthesized views" in rec.reason
+
+    # views the confirmation drops before confirming the rest are neither written nor recorded as kept
+    def pruned(inputs, small, planned, keep, *rest):
+        left = keep.copy()
+        left[np.flatnonzero(keep)[0]] = False
+        gone = planned[int(np.flatnonzero(keep)[0])].name
+        return Confirmation(c.photos, c.gains, True, (gone,), failed.gains), left
+
+    monkeypatch.setattr(selfcheck, "_confirmation", pruned)
+    dense = _densify(tmp_path / "c", monkeypatch, _exact, check)
+    rec = read_selfcheck(tmp_path / "c" / "out" / "scene")
+    written = [f.name for f in dense.frames if f.synthetic]
+    assert written == list(rec.kept) == [n for n in first if n != rec.confirmation.dropped[0]]
 
 
 def test_recon_none_writes_every_view_of_the_paper_plan_without_any_fit(tmp_path, monkeypatch):
