@@ -447,7 +447,7 @@ def test_the_confirmation_holds_back_every_interior_photo_the_folds_leave_and_ne
 def _confirming(monkeypatch, psnr_with, cfg: SelfCheckConfig, kept=(0, 2)):
     """The kept views' confirmation on a 12-input line, every fit without views at 20 dB at every photo and
     each with views at ``psnr_with(photo position, the names of its synthetic frames)``: (the confirmation,
-    the views it leaves kept, the photos each synthesis saw, the scene, the plan)."""
+    the views it leaves kept, the photos each synthesis saw, the scene)."""
     from sparself.evaluation import selfcheck
 
     scene = _line(12)
@@ -471,7 +471,7 @@ def _confirming(monkeypatch, psnr_with, cfg: SelfCheckConfig, kept=(0, 2)):
     keep = np.zeros(len(planned), bool)
     keep[list(kept)] = True
     c, left = selfcheck._confirmation(scene, small, planned, keep, 1.0, synth, fits, None, cfg)
-    return c, left, seen, scene, planned
+    return c, left, seen, scene
 
 
 def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from_them(monkeypatch):
@@ -482,15 +482,15 @@ def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from
     def at(table):
         return lambda p, fit: table.get(p, 20.0)
 
-    c, left, seen, scene, _ = _confirming(monkeypatch, at(gains), cfg)
+    c, _, seen, scene = _confirming(monkeypatch, at(gains), cfg)
     assert c.photos == tuple(scene.frames[p].name for p in sum(held, []))
     assert c.gains == pytest.approx([0.5, 0.5, -0.4, 0.3]) and c.confirmed and c.dropped == ()
     assert len(seen) == 2 and all(not seen[k] & {scene.frames[p].name for p in h} for k, h in enumerate(held))
-    c, _, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), cfg)  # one photo loses 1.5 dB: more than the limit
+    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), cfg)  # one photo loses 1.5 dB: more than the limit
     assert not c.confirmed and min(c.gains) == pytest.approx(-1.5) and c.dropped == ()  # no kept view beside it
-    c, _, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), replace(cfg, max_photo_loss=None))  # mean -0.05
+    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), replace(cfg, max_photo_loss=None))  # mean -0.05
     assert not c.confirmed
-    c, _, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), replace(cfg, max_photo_loss=None))  # mean +0.2
+    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), replace(cfg, max_photo_loss=None))  # mean +0.2
     assert c.confirmed
 
 
@@ -509,7 +509,7 @@ def test_a_photo_that_loses_too_much_drops_the_views_beside_it_and_the_rest_are_
     def psnr(p, fit):  # photo 6 loses 1.5 dB only with the view beside it; the others gain 0.5
         return 18.5 if p == 6 and culprit in fit else 20.5
 
-    c, left, _, _, _ = _confirming(monkeypatch, psnr, cfg, kept)
+    c, left, _, _ = _confirming(monkeypatch, psnr, cfg, kept)
     assert c.confirmed and c.dropped == (culprit,) and c.gains == pytest.approx([0.5] * 4)
     assert c.gains_before == pytest.approx([0.5, -1.5, 0.5, 0.5])  # photos 2, 6, 4, 8
     assert list(np.flatnonzero(left)) == sorted(kept[1:])
@@ -520,10 +520,10 @@ def test_a_photo_that_loses_too_much_drops_the_views_beside_it_and_the_rest_are_
         in reason
     )
     for off in (replace(cfg, confirm_prune=False), replace(cfg, recon="nerf")):  # the NeRF's default: off
-        c, left, _, _, _ = _confirming(monkeypatch, psnr, off, kept)
+        c, left, _, _ = _confirming(monkeypatch, psnr, off, kept)
         assert not c.confirmed and c.dropped == () and left.sum() == 3
     # when the photo still loses without the views beside it, the rest are not confirmed either
-    c, _, _, _, _ = _confirming(monkeypatch, lambda p, fit: 18.5 if p == 6 else 20.5, cfg, kept)
+    c, _, _, _ = _confirming(monkeypatch, lambda p, fit: 18.5 if p == 6 else 20.5, cfg, kept)
     assert not c.confirmed and c.dropped == (culprit,) and min(c.gains) == pytest.approx(-1.5)
 
 
