@@ -1,6 +1,9 @@
 """CPU Gaussian splatting against closed forms: one Gaussian's footprint and opacity, compositing order,
 the tiled-free fast path against the per-Gaussian reference, finite-difference gradients, a tiny fit."""
 
+import dataclasses
+import logging
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +12,7 @@ from planescene import DEPTH, plane_scene
 from sparself.capture.scene import Camera
 from sparself.core.geometry import Pose
 from sparself.core.metrics import psnr
-from sparself.recon import RECONSTRUCTORS
+from sparself.recon import RECONSTRUCTORS, splat
 from sparself.recon.splat import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -149,6 +152,73 @@ def test_fast_path_equals_the_per_gaussian_reference():
     _, alpha_ref = rasterize_reference(p, cam.width, cam.height, bg)
     np.testing.assert_allclose(alpha.numpy(), alpha_ref.numpy(), atol=1e-10)
     assert float(alpha.max()) > 0.999  # the cut-off was exercised
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_compiled_path_renders_and_differentiates_as_the_plain_one(dtype):
+    """The fits' compiled rasterizer: the same pairs, the same image and alpha to float rounding, and the same
+    gradients for every Gaussian parameter (the cut-off at T = 1e-4 exercised)."""
+    cam = Camera.pinhole(48, 36, 40.0)
+    g = _random_gaussians(150, 0)
+    g.opacity_logits = g.opacity_logits + 3.0
+    bg = torch.tensor([0.2, 0.3, 0.4], dtype=dtype)
+    out = {}
+    for compiled in (False, True):
+        params = {k: getattr(g, k).to(dtype).clone().requires_grad_(True) for k in splat._FIELDS}
+        img, p = render_gaussians(Gaussians(**params), IDENTITY, cam, bg, 1, compiled=compiled)
+        pairs = splat._pixel_pairs(p, cam.width, cam.height, compiled=compiled)
+        _, alpha = rasterize(p, cam.width, cam.height, bg, compiled=compiled)
+        (img * torch.linspace(0, 1, img.numel(), dtype=dtype).view(img.shape)).sum().backward()
+        out[compiled] = (img.detach(), alpha.detach(), pairs, {k: v.grad for k, v in params.items()})
+    (img0, alpha0, pairs0, grads0), (img1, alpha1, pairs1, grads1) = out[False], out[True]
+    assert splat._FAST[splat._composite] is not None and splat._FAST[splat._candidates] is not None
+    assert float(alpha0.max()) > 0.999 and len(pairs0.pix) > 1000
+    for a, b in zip(dataclasses.astuple(pairs0), dataclasses.astuple(pairs1)):
+        torch.testing.assert_close(b, a, rtol=0, atol=0)
+    tol = dict(rtol=1e-5, atol=1e-6) if dtype == torch.float32 else dict(rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(img1, img0, **tol)
+    torch.testing.assert_close(alpha1, alpha0, **tol)
+    for k in grads0:
+        torch.testing.assert_close(grads1[k], grads0[k], rtol=1e-4 if dtype == torch.float32 else 1e-9, atol=1e-6)
+
+
+def test_without_a_working_compiler_the_plain_path_runs_and_says_so_once(monkeypatch, caplog):
+    def broken(fn, **kw):
+        def call(*a, **k):
+            raise RuntimeError("no C++ compiler found\nmore detail")
+
+        return call
+
+    monkeypatch.setattr(torch, "compile", broken)
+    monkeypatch.setattr(splat, "_FAST", {})
+    cam = Camera.pinhole(20, 16, 20.0)
+    g = _random_gaussians(30, 1)
+    bg = torch.zeros(3, dtype=D)
+    with caplog.at_level(logging.WARNING, logger="sparself.recon.splat"):
+        plain, _ = render_gaussians(g, IDENTITY, cam, bg, 1)
+        for _ in range(2):
+            tried, _ = render_gaussians(g, IDENTITY, cam, bg, 1, compiled=True)
+            assert torch.equal(tried, plain)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 2 and all("no C++ compiler found" in m and "plain torch path" in m for m in said)
+    assert {m.split()[1] for m in said} == {"_candidates", "_composite"}  # one line each, not one a call
+    assert splat._FAST == {splat._candidates: None, splat._composite: None}
+
+
+def test_compiled_fits_are_repeatable_and_as_good_as_plain_ones():
+    """The fit's default (compiled) path: the same seed gives the same Gaussians, and its training views are
+    rendered about as well as by a fit on the plain path (chaotic optimisation: not bit for bit)."""
+    sc = plane_scene(xs=(0.0, 0.1, 0.2))
+    kw = dict(steps=90, init_points=200, grow_every=20, progress=False, seed=3, min_steps_per_view=0, max_side=48)
+    a, b = fit(sc, **kw), fit(sc, **kw)
+    plain = fit(sc, compiled=False, **kw)
+    assert SplatConfig().compiled
+    for k in splat._FIELDS:
+        assert torch.equal(getattr(a.gaussians, k), getattr(b.gaussians, k))
+    scores = [
+        np.mean([psnr(r.render(f.pose, sc.camera(i)), sc.load(i)) for i, f in enumerate(sc.frames)]) for r in (a, plain)
+    ]
+    assert scores[0] > 20 and abs(scores[0] - scores[1]) < 1.0
 
 
 @pytest.mark.parametrize("reference", [False, True])
