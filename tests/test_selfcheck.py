@@ -475,6 +475,8 @@ def _confirming(monkeypatch, psnr_with, cfg: SelfCheckConfig, kept=(0, 2)):
 
 
 def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from_them(monkeypatch):
+    from sparself.evaluation import selfcheck
+
     cfg = SelfCheckConfig(pixel_weights="uniform", max_photo_loss=1.0, check_size=96)
     held = confirm_folds(12, "own")  # [[2, 6], [4, 8]]
     gains = {2: 20.5, 6: 20.5, 4: 19.6, 8: 20.3}  # +0.5, +0.5, -0.4, +0.3 dB
@@ -490,8 +492,14 @@ def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from
     assert not c.confirmed and min(c.gains) == pytest.approx(-1.5) and c.dropped == ()  # no kept view beside it
     c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), replace(cfg, max_photo_loss=None))  # mean -0.05
     assert not c.confirmed
-    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), replace(cfg, max_photo_loss=None))  # mean +0.2
+    # a gain within its spread over the photos is no evidence, as for the folds' kept views
+    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), replace(cfg, max_photo_loss=None))  # +0.03 ± 0.27
+    assert not c.confirmed and c.gains == pytest.approx([0.5, 0.5, -0.4, -0.5])
+    c, _, _, _ = _confirming(monkeypatch, at({2: 20.6, 6: 20.4, 4: 19.9, 8: 20.5}), cfg)  # +0.35 ± 0.16
     assert c.confirmed
+    # a single photo has no spread: a gain, or none lost, confirms
+    single = [selfcheck._confirmed_by(("a",), np.array([g]), cfg).confirmed for g in (0.1, 0.0, -0.1)]
+    assert single == [True, True, False]
 
 
 def test_a_photo_that_loses_too_much_drops_the_views_beside_it_and_the_rest_are_tested_again(monkeypatch):

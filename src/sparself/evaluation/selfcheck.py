@@ -37,11 +37,11 @@ poses it can be: the check measures with the error of its folds, whose gaps are 
 * **Confirm on other photos** (``confirm``; by default for the 3DGS and the NeRF): the views are kept on the
   folds' held-back photos, so their gain there is chosen as much as measured. Two more folds hold back the
   interior photos no fold held back (:func:`~sparself.evaluation.folds.confirm_folds`); the kept views,
-  synthesized again without those photos, are fitted beside the rest, and none is kept when there they lose on
-  the mean or one photo loses more than ``max_photo_loss``: a view that spoils the fit far from the photos it
-  was judged on. With ``confirm_prune`` the views in the gap of a photo that loses more than that are dropped
-  first and the rest tested once more on the same photos (a second choice made on them, so it is measured on
-  the held-out frames before it is trusted).
+  synthesized again without those photos, are fitted beside the rest, and none is kept when there they gain no
+  more than their spread over those photos (the folds' rule) or one photo loses more than ``max_photo_loss``: a
+  view that spoils the fit far from the photos it was judged on. With ``confirm_prune`` the views in the gap of
+  a photo that loses more than that are dropped first and the rest tested once more on the same photos (a
+  second choice made on them, so it is measured on the held-out frames before it is trusted).
 * **Fix before checking** (:mod:`sparself.evaluation.fixing`): a small network trained on every fold's
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
@@ -199,8 +199,9 @@ class SelfCheckConfig:
     confirm: bool | None = option(
         None,
         "test the kept views together on the interior input photos no fold held back (two more folds, the "
-        "views synthesized again without their photos), and keep none when there the fit with them loses on "
-        "the mean or any photo loses more than max_photo_loss: the views were chosen on the other photos; "
+        "views synthesized again without their photos), and keep none when there the fit with them gains no "
+        "more than its spread over those photos on the mean (as the folds' rule) or any photo loses more than "
+        "max_photo_loss: the views were chosen on the other photos; "
         "auto: for the 3DGS (measured: it kept llff_bird 25 at N where two seeds lost 1.2 dB, and 9 inputs at "
         "+1.69 dB as without it) and the NeRF (it refused the dinoSparseRing seed that lost 0.06 dB and confirmed "
         "every llff_bird seed); off for the MPI (it refused the +0.09 dB of 25 llff_bird inputs)",
@@ -770,11 +771,10 @@ def _confirmation(
 ) -> tuple[Confirmation | None, np.ndarray]:
     """The kept views tested together on the photos no fold held back (:func:`confirm_folds`): per fold, they
     are synthesized again without its photos (and fixed as the written ones are), and the inputs without those
-    photos are fitted without and with them at weight ``w``. Confirmed when the change at those photos is not
-    negative on the mean and no photo loses more than ``cfg.max_photo_loss``. When :func:`prune_on`, the
-    views inside the gap of a photo that loses more are dropped and the rest tested once more on the same
-    photos (:func:`_pruned`). Returns the confirmation (None when no view is kept or there is no such photo)
-    and the views it leaves kept."""
+    photos are fitted without and with them at weight ``w``, and judged by :func:`_confirmed_by`. When
+    :func:`prune_on`, the views inside the gap of a photo that loses more than ``cfg.max_photo_loss`` are dropped
+    and the rest tested once more on the same photos (:func:`_pruned`). Returns the confirmation (None when no
+    view is kept or there is no such photo) and the views it leaves kept."""
     helds = confirm_folds(len(small), cfg.gain_gap)
     if not helds or not keep.any():
         return None, keep
@@ -813,10 +813,13 @@ def _confirmation(
 
 
 def _confirmed_by(photos: tuple[str, ...], gains: np.ndarray, cfg, **more) -> Confirmation:
-    """The confirmation of views whose fits change ``photos`` by ``gains`` dB: not negative on the mean and no
+    """The confirmation of views whose fits change ``photos`` by ``gains`` dB: a clear gain over them, as the
+    folds' spread rule asks of the views it keeps (:func:`~sparself.core.metrics.clear_gain`: the mean above its
+    standard error and ``cfg.min_gain``; one photo, which has no spread: not under ``cfg.min_gain``), and no
     photo losing more than ``cfg.max_photo_loss``."""
     safe = cfg.max_photo_loss is None or gains.min() >= -cfg.max_photo_loss
-    return Confirmation(photos, tuple(float(g) for g in gains), bool(gains.mean() >= 0 and safe), **more)
+    gain = clear_gain(gains, cfg.min_gain) if gains.size > 1 else bool(gains.mean() >= cfg.min_gain)
+    return Confirmation(photos, tuple(float(g) for g in gains), bool(gain and safe), **more)
 
 
 def _pruned(small: Scene, frames: list[Frame], photos: list[int], first: Confirmation, change, cfg) -> Confirmation:
