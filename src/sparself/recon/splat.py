@@ -16,7 +16,9 @@ the reference 3DGS (Kerbl et al. 2023) and gsplat's conventions so the two paths
 :func:`rasterize_reference` composites one Gaussian at a time over the whole image (the plain definition);
 :func:`rasterize` does the same at once over the (Gaussian, pixel) pairs whose alpha reaches 1/255, with the
 transmittance as a per-pixel cumulative sum of log(1 - alpha). Tests hold them equal. A Gaussian's footprint
-(the bounding box of the ellipse where its alpha can reach 1/255, from its opacity) drops nothing.
+(the bounding box of the ellipse where its alpha can reach 1/255, from its opacity) drops nothing. Fits run its
+per-pair work compiled by ``torch.compile`` (:func:`fast`: the same images to float rounding, the plain path
+where no compiler runs).
 """
 
 from __future__ import annotations
@@ -381,10 +383,8 @@ def _first_line(e: Exception) -> str:
     return (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
 
 
-PROBE_GAUSSIANS, PROBE_SIDES = (
-    7,
-    (6, 5),
-)  # sizes unlike any other (3 colours): a size seen equal to a constant is not compiled as dynamic
+# the probe's sizes are unlike any other (3 colours): a size equal to a constant is compiled as that constant
+PROBE_GAUSSIANS, PROBE_SIDES = 7, (6, 5)
 
 
 def _probe_inputs(dtype: torch.dtype) -> tuple[Projected, _Pairs]:
