@@ -320,7 +320,7 @@ def test_chosen_pixel_weights_fall_back_to_the_other_way_when_the_better_keeps_n
         "confidence",
         "uniform",
     }
-    assert "not confirmed (-1.25 dB on the mean, worst -2.00)" in rec.reason
+    assert "not confirmed (-1.25 dB on the mean (standard error 0.75), worst -2.00)" in rec.reason
     # when neither way keeps a view, the record is the first way's
     monkeypatch.setattr(selfcheck, "_confirmation", lambda *a: (Confirmation(("a",), (-0.5,), False), a[3]))
     none = selfcheck.self_check(scene, planned, synth, synth(scene, planned), cfg, "paper")
@@ -524,8 +524,9 @@ def test_a_photo_that_loses_too_much_drops_the_views_beside_it_and_the_rest_are_
     assert Confirmation.from_json(json.loads(json.dumps(asdict(c)))) == c
     reason = selfcheck._confirm_reason(c, 3, "3dgs", "kept")
     assert (
-        "confirmed on 4 input photos no fold held back (+0.50 dB on the mean, worst +0.50) after dropping 1 of"
-        in reason
+        "confirmed on 4 input photos no fold held back (+0.50 dB on the mean (standard error 0.00), worst +0.50) "
+        "after dropping 1 of the 3 views (those beside a photo that lost more than the limit with all of them: "
+        "+0.00 dB on the mean (standard error 0.50), worst -1.50)" in reason
     )
     for off in (replace(cfg, confirm_prune=False), replace(cfg, recon="nerf")):  # the NeRF's default: off
         c, left, _, _ = _confirming(monkeypatch, psnr, off, kept)

@@ -803,7 +803,7 @@ def _confirmation(
         "self-check: the %d kept views on %d input photos no fold held back: %s (%s)",
         len(frames),
         len(photos),
-        _confirm_change(confirmation),
+        _confirm_change(confirmation.gains),
         "confirmed" if confirmation.confirmed else "not confirmed",
     )
     if not confirmation.confirmed and prune_on(cfg):
@@ -840,7 +840,7 @@ def _pruned(small: Scene, frames: list[Frame], photos: list[int], first: Confirm
         "self-check: the %d kept views without the %d beside the photos that lose most, on the same photos: %s (%s)",
         len(frames) - len(dropped),
         len(dropped),
-        _confirm_change(again),
+        _confirm_change(again.gains),
         "confirmed" if again.confirmed else "not confirmed",
     )
     return again
@@ -854,9 +854,9 @@ def _some(views: ValidationViews, sub: np.ndarray) -> ValidationViews:
 
 def _confirm_reason(c: Confirmation, chosen: int, recon: str, reason: str) -> str:
     """The decision's reason with the confirmation (``chosen``: the views it tested; ``reason``: the check's)."""
-    measured = f"on {len(c.gains)} input photos no fold held back ({_confirm_change(c)})"
+    measured = f"on {len(c.gains)} input photos no fold held back ({_confirm_change(c.gains)})"
     if c.dropped:
-        first = f"{np.mean(c.gains_before):+.2f} dB on the mean, worst {min(c.gains_before):+.2f}"
+        first = _confirm_change(c.gains_before)
         measured += (
             f" after dropping {len(c.dropped)} of the {chosen} views (those beside a photo that lost more than the "
             f"limit with all of them: {first})"
@@ -869,9 +869,12 @@ def _confirm_reason(c: Confirmation, chosen: int, recon: str, reason: str) -> st
     )
 
 
-def _confirm_change(c: Confirmation) -> str:
-    """The confirmation's change at its photos, in words."""
-    return f"{np.mean(c.gains):+.2f} dB on the mean, worst {min(c.gains):+.2f}"
+def _confirm_change(gains) -> str:
+    """A confirmation's changes at its photos (dB), in words, with the standard error that :func:`_confirmed_by`
+    compares their mean with."""
+    g = np.asarray(gains, np.float64)
+    spread = f" (standard error {g.std(ddof=1) / np.sqrt(g.size):.2f})" if g.size > 1 else ""
+    return f"{g.mean():+.2f} dB on the mean{spread}, worst {g.min():+.2f}"
 
 
 def _gated(
@@ -1096,7 +1099,7 @@ def _pixel_reason(tried: tuple[tuple[str, float], ...], cfg, given_up: _Outcome 
         return f"; {cfg.pixel_weights} pixel weights, chosen on the held-back photos (the fits with {others} dB)"
     c, why = given_up.confirmation, "kept no view"
     if c is not None and not c.confirmed:
-        why = f"their {given_up.chosen} views were not confirmed ({_confirm_change(c)})"
+        why = f"their {given_up.chosen} views were not confirmed ({_confirm_change(c.gains)})"
     head = f"; {cfg.pixel_weights} pixel weights: the fits with {others} dB scored higher on the held-back photos, "
     return head + f"but {why}"
 
