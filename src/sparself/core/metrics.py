@@ -73,6 +73,17 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float = 1.0) -> float:
     return float(m.mean())
 
 
+def standard_error(values) -> float:
+    """The standard error of the mean of ``values`` (any shape; sample standard deviation / sqrt(n)); NaN for fewer
+    than two.
+
+    >>> round(standard_error([1.0, 1.2, 0.8]), 4), standard_error([5.0])
+    (0.1155, nan)
+    """
+    v = np.asarray(values, np.float64).ravel()
+    return float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
+
+
 def clear_gain(gain, floor: float = 0.0) -> bool:
     """Whether paired gains (one per photo, any shape) show a gain: their mean exceeds both ``floor`` and
     their standard error. One photo shows none (no spread to compare with).
@@ -83,7 +94,7 @@ def clear_gain(gain, floor: float = 0.0) -> bool:
     g = np.asarray(gain, np.float64).ravel()
     if g.size < 2:
         return False
-    return bool(g.mean() > max(floor, g.std(ddof=1) / np.sqrt(g.size)))
+    return bool(g.mean() > max(floor, standard_error(g)))
 
 
 def summarize(values) -> dict:

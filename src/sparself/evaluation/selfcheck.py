@@ -70,7 +70,7 @@ from sparself.capture.images import resize_images
 from sparself.capture.io.dense import Confirmation, GapTrend, SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
-from sparself.core.metrics import clear_gain
+from sparself.core.metrics import clear_gain, standard_error
 from sparself.core.options import check_choices, option
 from sparself.evaluation.config import Gap, KeepRule, PixelWeights
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
@@ -873,7 +873,7 @@ def _confirm_change(gains) -> str:
     """A confirmation's changes at its photos (dB), in words, with the standard error that :func:`_confirmed_by`
     compares their mean with."""
     g = np.asarray(gains, np.float64)
-    spread = f" (standard error {g.std(ddof=1) / np.sqrt(g.size):.2f})" if g.size > 1 else ""
+    spread = f" (standard error {standard_error(g):.2f})" if g.size > 1 else ""
     return f"{g.mean():+.2f} dB on the mean{spread}, worst {g.min():+.2f}"
 
 
