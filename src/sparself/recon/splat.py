@@ -387,29 +387,29 @@ def _first_line(e: Exception) -> str:
 PROBE_GAUSSIANS, PROBE_SIDES = 7, (6, 5)
 
 
-def _probe_inputs(dtype: torch.dtype) -> tuple[Projected, _Pairs]:
-    """PROBE_GAUSSIANS Gaussians over an image of PROBE_SIDES, with gradients on their means, conics,
+def _probe_inputs() -> tuple[Projected, _Pairs]:
+    """PROBE_GAUSSIANS float32 Gaussians over an image of PROBE_SIDES, with gradients on their means, conics,
     opacities and colours."""
     n, (w, h) = PROBE_GAUSSIANS, PROBE_SIDES
     gen = torch.Generator().manual_seed(0)
-    means2d = (torch.rand(n, 2, generator=gen, dtype=dtype) * torch.tensor([w, h], dtype=dtype)).requires_grad_(True)
-    conics = torch.tensor([[0.5, 0.1, 0.4]] * n, dtype=dtype, requires_grad=True)
-    opac = torch.full((n,), 0.6, dtype=dtype, requires_grad=True)
-    colors = torch.rand(n, 3, generator=gen, dtype=dtype).requires_grad_(True)
-    radii = torch.full((n, 2), 4.0, dtype=dtype)
-    p = Projected(means2d, conics, opac, colors, torch.ones(n, dtype=dtype), radii, torch.arange(n))
+    means2d = (torch.rand(n, 2, generator=gen) * torch.tensor([w, h])).requires_grad_(True)
+    conics = torch.tensor([[0.5, 0.1, 0.4]] * n, requires_grad=True)
+    opac = torch.full((n,), 0.6, requires_grad=True)
+    colors = torch.rand(n, 3, generator=gen).requires_grad_(True)
+    radii = torch.full((n, 2), 4.0)
+    p = Projected(means2d, conics, opac, colors, torch.ones(n), radii, torch.arange(n))
     return p, _pixel_pairs(p, w, h)
 
 
 def _probe_composite(compiled: Callable) -> None:
-    p, pairs = _probe_inputs(torch.float32)
+    p, pairs = _probe_inputs()
     fields = (pairs.gauss, pairs.pix, pairs.px, pairs.py, pairs.starts, pairs.seg)
     C, logT = compiled(p.means2d, p.conics, p.opacities, p.colors, fields, PROBE_SIDES[0] * PROBE_SIDES[1])
     (C.sum() + logT.sum()).backward()
 
 
 def _probe_candidates(compiled: Callable) -> None:
-    p, _ = _probe_inputs(torch.float32)
+    p, _ = _probe_inputs()
     n = PROBE_GAUSSIANS
     corner = torch.arange(n, dtype=torch.float32) % 3
     start = torch.arange(0, 4 * n, 4, dtype=torch.int32)
