@@ -433,3 +433,41 @@ def test_the_seeds_3dgs_self_checks_run_in_turns_on_two_workers_decide_as_one_af
     assert set(got[1]) >= {"base", "sparself", "oracle", "sparself_checked"}
     assert all("SelfCheck(" in d for _, d in got[1]["sparself_checked"])
     assert got[1] == got[2]
+
+
+def test_what_each_seed_writes_is_fitted_beside_the_other_checks_as_it_is_alone(tmp_path, monkeypatch):
+    # the fit of a seed's kept views runs in the checks' pool, beside the other seeds' checks: it must score
+    # as the same fit made on its own, and only for the seed that keeps views
+    from sparself.evaluation import checked
+    from sparself.evaluation.selfcheck import Checked
+    from sparself.recon.pool import FitPool, Fitter
+
+    def keeping(inputs, planned, plan, synth, cfg, sources=None, fits=None, other=None):
+        if cfg.check_seed % 2:  # the second seed keeps no view, the first two
+            return planned, Checked([], np.zeros((0, H, W, 3), np.float32), None, None), None
+        return planned, Checked(planned[:2], np.asarray(synth(inputs, planned[:2])), None, None), None
+
+    pooled = []
+    real_run = FitPool.run
+
+    def spying(self, jobs):
+        pooled.append((self.workers, len(jobs[0][1])))
+        return real_run(self, jobs)
+
+    hooks, _ = _hooks()
+    splat = dict(steps=0, min_steps_per_view=4, init_points=150, max_gaussians=300, progress=False, seed=0)
+    hooks["reconstructors"] = {"3dgs": Fitter("splat", splat)}
+    capture, cfg = _capture(tmp_path / "cap"), _tiny_cfg(densify_baselines=(), weighted=False)
+    monkeypatch.setattr(checked, "checked_views", keeping)
+    monkeypatch.setattr(FitPool, "run", spying)
+    got = {}
+    for workers in (1, 2):
+        monkeypatch.setattr(checked, "check_workers", lambda cfg, w=workers: w)
+        monkeypatch.setattr(checked, "side_by_side", lambda name, w=workers: w)
+        pooled.clear()
+        rows = ev.evaluate([capture], tmp_path / f"out{workers}", cfg, **hooks).scenes[0].densification["3dgs"].rows
+        got[workers] = [p.raw_mean("psnr") for p in rows["sparself_checked"].per_seed]
+        base = [p.raw_mean("psnr") for p in rows["base"].per_seed]
+        assert (workers, cfg.inputs[0] + 2) in pooled  # the kept views' fit went to the checks' pool
+    assert got[1] == got[2]
+    assert got[1][0] != base[0] and got[1][1] == base[1]

@@ -36,7 +36,7 @@ from sparself.evaluation.selfcheck import (
     remembering,
 )
 from sparself.recon import Renderer
-from sparself.recon.pool import FitPool
+from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.plan import PlanConfig
 
 log = logging.getLogger(__name__)
@@ -109,23 +109,22 @@ def checked_fits(
             return memos[key]
 
         tasks = []
-        for synth, cfg in zip(ev.net_synths, cfgs):
+        for synth, cfg, seed in zip(ev.net_synths, cfgs, seeds):
             fits, second = fits_for(cfg), other_seed(cfg)
             other = None if second is None else fits_for(second)  # the next seed's fits without views, once
-            tasks.append(partial(checked_views, ev.inputs, ev.planned, plan, synth, cfg, fits=fits, other=other))
-        # the seeds' self-checks are independent: their fits share the workers
-        done = [views for _, views, _ in pool.in_turns(tasks)]
+            check = partial(checked_views, ev.inputs, ev.planned, plan, synth, cfg, fits=fits, other=other)
+            tasks.append(partial(_checked_and_fitted, ev, check, fit, fit_seed(ev.cfg, seed), pool))
+        # the seeds' self-checks are independent: their fits share the workers, and so does the fit of what a
+        # seed writes, which then runs beside the other seeds' checks instead of after them
+        done, fitted = zip(*pool.in_turns(tasks))
         for seed, checked, cfg in zip(seeds, done, cfgs):
             label = f"{NETWORK_FIXED} ({rname}) seed {seed}"
             fixed_views.append(_fixed_targets(ev, seed - ev.cfg.first_seed, checked, cfg, label))
-    kept = [k for k, c in enumerate(done) if c.frames]
-    scenes = [with_images(ev.inputs, done[k].frames, done[k].images, done[k].confidence) for k in kept]
-    fitted = dict(zip(kept, fit_each(fit, scenes, [fit_seed(ev.cfg, seeds[k]) for k in kept])))
-    for k, (seed, checked) in enumerate(zip(seeds, done)):
+    for k, (seed, checked, written) in enumerate(zip(seeds, done, fitted)):
         label = f"{rname} ({NETWORK_CHECKED} seed {seed})"
-        if k in fitted:
+        if written is not None:
             views_n = len(ev.inputs) + len(checked.frames)
-            scored = ev.score(renders(fitted[k], ev.full, ev.targets), label, ev.scored, seed=seed, views=views_n)
+            scored = ev.score(renders(written, ev.full, ev.targets), label, ev.scored, seed=seed, views=views_n)
         else:  # nothing kept: the capture is the N photos, and so is its fit (that seed's)
             scored = replace(base[seed], seed=seed)
         scored.decision = checked.record
@@ -139,6 +138,20 @@ def checked_fits(
         ev.result.notes.append(note)
     if views.per_seed:
         entry.rows[NETWORK_FIXED] = views
+
+
+def _checked_and_fitted(
+    ev: SceneEval, check: Callable[[], tuple], fit: Callable[[Scene], Renderer], seed: int, pool: FitPool
+) -> tuple[Checked, Renderer | None]:
+    """A seed's self-check (``check()``: :func:`checked_views`'s answer) and the fit, at reconstruction seed
+    ``seed``, of the capture it writes: the inputs and its kept views (None when it keeps none). The fit goes
+    to the check's ``pool`` where its reconstructor fits side by side (a GPU's fit stays in this process)."""
+    _, checked, _ = check()
+    if not checked.frames:
+        return checked, None
+    scene = with_images(ev.inputs, checked.frames, checked.images, checked.confidence)
+    shared = pool if isinstance(fit, Fitter) and side_by_side(fit.name) > 1 else None
+    return checked, next(iter(fit_each(fit, [scene], [seed], shared)))
 
 
 def _at_kept_views(

@@ -19,7 +19,7 @@ from sparself.core.errors import ConfigError, InputError
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
 from sparself.recon import Renderer, backend, get_reconstructor
-from sparself.recon.pool import Fitter
+from sparself.recon.pool import FitPool, Fitter
 from sparself.synthesis.baselines import BASELINES
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import train
@@ -121,12 +121,13 @@ def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
 
 
 def fit_each(
-    fit: Callable[[Scene], Renderer], scenes: list[Scene], seeds: list[int] | None = None
+    fit: Callable[[Scene], Renderer], scenes: list[Scene], seeds: list[int] | None = None, pool: FitPool | None = None
 ) -> Iterable[Renderer]:
     """A renderer per scene, in order: all at once, side by side where that pays, for a reconstructor with
     its settings (:class:`~sparself.recon.pool.Fitter`; scene k with reconstruction seed ``seeds[k]`` when
-    given); one after the other as they are read for any other ``fit`` (a test's, which takes no seed)."""
-    return fit.many(scenes, seeds=seeds) if isinstance(fit, Fitter) else (fit(sc) for sc in scenes)
+    given; by ``pool`` when given, else a pool of its own); one after the other as they are read for any other
+    ``fit`` (a test's, which takes no seed)."""
+    return fit.many(scenes, pool, seeds) if isinstance(fit, Fitter) else (fit(sc) for sc in scenes)
 
 
 def fit_seed(cfg: EvalConfig, seed: int) -> int:
