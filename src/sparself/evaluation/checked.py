@@ -141,7 +141,11 @@ def checked_fits(
 
 
 def _checked_and_fitted(
-    ev: SceneEval, check: Callable[[], tuple], fit: Callable[[Scene], Renderer], seed: int, pool: FitPool
+    ev: SceneEval,
+    check: Callable[[], tuple[list[Frame], Checked, object]],
+    fit: Callable[[Scene], Renderer],
+    seed: int,
+    pool: FitPool,
 ) -> tuple[Checked, Renderer | None]:
     """A seed's self-check (``check()``: :func:`checked_views`'s answer) and the fit, at reconstruction seed
     ``seed``, of the capture it writes: the inputs and its kept views (None when it keeps none). The fit goes
