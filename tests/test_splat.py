@@ -355,9 +355,26 @@ def test_large_images_find_the_same_pairs_in_float64(monkeypatch):
     small = splat._pixel_pairs(p, cam.width, cam.height)
     monkeypatch.setattr(splat, "EXACT_FLOAT32", 0)  # as if the image had 2^24 pixels or more
     large = splat._pixel_pairs(p, cam.width, cam.height)
-    assert large.px.dtype == torch.float64 and small.px.dtype == torch.float32 and len(small.gauss) > 1000
+    assert len(small.gauss) > 1000
     assert torch.equal(small.gauss, large.gauss) and torch.equal(small.pix, large.pix)
-    assert torch.equal(small.px.double(), large.px) and torch.equal(small.py.double(), large.py)
+    # the pixel centres the composite derives from the indices, in float64 there, are the same numbers
+    for a, b in zip(
+        splat._centres(small.pix, cam.width, torch.float32), splat._centres(large.pix, cam.width, torch.float64)
+    ):
+        assert a.dtype == torch.float32 and torch.equal(a.double(), b)
+
+
+@pytest.mark.parametrize(("width", "dtype"), [(4099, torch.float32), (4099, torch.float64), (7, torch.float32)])
+def test_pixel_centres_are_the_column_and_row_of_each_index_plus_a_half(width, dtype):
+    """Exact for every index the composite gives them in float32 (up to 2^23), the last column of each row
+    included."""
+    from sparself.recon import splat
+
+    top = splat.EXACT_HALVES_FLOAT32
+    pix = torch.cat([torch.arange(0, 3 * width), torch.arange(top - 3 * width, top)])
+    px, py = splat._centres(pix, width, dtype)
+    assert torch.equal(px.double(), (pix % width).double() + 0.5)
+    assert torch.equal(py.double(), (pix // width).double() + 0.5)
 
 
 def test_images_too_large_for_int16_pixel_numbers_find_the_same_pairs_in_the_same_order(monkeypatch):

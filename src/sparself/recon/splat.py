@@ -47,6 +47,7 @@ ALPHA_MIN, ALPHA_MAX, T_MIN = 1.0 / 255.0, 0.999, 1e-4
 EPS2D = 0.3  # px^2 low-pass added to every 2D covariance
 NEAR_PLANE = 0.01
 EXACT_FLOAT32 = 1 << 24  # whole numbers up to here are exact in float32
+EXACT_HALVES_FLOAT32 = 1 << 23  # and whole numbers + 0.5 up to here
 INT16_PIXELS = 1 << 15  # images of at most this many pixels number them in int16
 BACKEND = "cpu: sparself.recon.splat (plain torch)"
 
@@ -244,15 +245,21 @@ def rasterize_reference(
 @dataclass
 class _Pairs:
     """Every (Gaussian, pixel) with alpha >= 1/255, sorted by pixel and, within a pixel, front to back:
-    gauss (P,) rows of the Projected; pix (P,) = row * width + column; px, py (P,) float pixel
-    centres (column + 0.5, row + 0.5)."""
+    gauss (P,) rows of the Projected; pix (P,) = row * width + column."""
 
     gauss: torch.Tensor
     pix: torch.Tensor
-    px: torch.Tensor
-    py: torch.Tensor
     starts: torch.Tensor  # (S,) the first pair of each pixel with any
     seg: torch.Tensor  # (P,) each pair's pixel among those S
+
+
+def _centres(pix: torch.Tensor, width: int, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pixel centres px, py (P,) (column + 0.5, row + 0.5) of pixel indices ``pix`` (P,), by a float
+    division (an int64 one made a fit step slower than the two gathers it replaces): exact below
+    EXACT_HALVES_FLOAT32 in float32, where index + 0.5 is."""
+    f = pix.to(dtype)
+    row = torch.floor((f + 0.5) / width)  # the +0.5 keeps the quotient away from whole numbers
+    return f - row * width + 0.5, row + 0.5
 
 
 def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26, compiled: bool = False) -> _Pairs:
@@ -277,22 +284,20 @@ def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26
         gauss = torch.repeat_interleave(torch.arange(len(m), dtype=torch.int32), counts, output_size=total)
         start = torch.cumsum(counts, 0, dtype=torch.int32) - counts
         candidates = fast(_candidates, _probe_candidates) if compiled and total > 1 else _candidates
-        px, py, visible = candidates(m.detach(), p.conics.detach(), p.opacities.detach(), x0, y0, nx, start, gauss)
+        pix, visible = candidates(m.detach(), p.conics.detach(), p.opacities.detach(), x0, y0, nx, start, gauss, width)
         keep = torch.nonzero(visible).squeeze(1)
-        px, py = px.index_select(0, keep), py.index_select(0, keep)
-        pix = ((py - 0.5) * width + (px - 0.5)).int()
+        pix = pix.index_select(0, keep)
         # Gaussians are in depth order: a stable sort by pixel keeps it (of int16 keys where they fit: a
         # radix sort, 2.4x faster than of int32 ones; the order is the same)
         key = pix.to(torch.int16) if width * height <= INT16_PIXELS else pix
-        sort = torch.sort(key, stable=True).indices
-        at = keep.index_select(0, sort)
+        pix, sort = torch.sort(key, stable=True)
         # int64 out: the backward of an index_select by int32 indices runs at half the speed
-        gauss, pix = gauss.index_select(0, at).long(), pix.index_select(0, sort).long()
+        gauss, pix = gauss.index_select(0, keep.index_select(0, sort)).long(), pix.long()
         first = torch.ones_like(pix, dtype=torch.bool)
         first[1:] = pix[1:] != pix[:-1]
         seg = torch.cumsum(first, 0) - 1
         starts = torch.nonzero(first).squeeze(1)
-        return _Pairs(gauss, pix, px.index_select(0, sort), py.index_select(0, sort), starts, seg)
+        return _Pairs(gauss, pix, starts, seg)
 
 
 def _candidates(
@@ -304,17 +309,19 @@ def _candidates(
     nx: torch.Tensor,
     start: torch.Tensor,
     gauss: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    width: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Each pair of a Gaussian ``gauss`` (P,) int32 and a pixel of its box, whose pairs are consecutive from
     ``start`` (M,) int32, row by row from the left column ``x0``, top row ``y0``, ``nx`` (M,) pixels a row:
-    the pixel centres px, py (P,) and whether the Gaussian's alpha reaches 1/255 there (P,) bool, from
-    means2d (M, 2), conics (M, 3) and opacities (M,)."""
+    the pixel (P,) int32 (row * width + column) and whether the Gaussian's alpha reaches 1/255 there (P,)
+    bool, from means2d (M, 2), conics (M, 3) and opacities (M,)."""
     local = (torch.arange(gauss.shape[0], dtype=torch.int32) - start.index_select(0, gauss)).to(x0.dtype)
     nxg = nx.index_select(0, gauss)
     row = torch.floor((local + 0.5) / nxg)  # the +0.5 keeps the quotient away from whole numbers
     px = x0.index_select(0, gauss) + (local - row * nxg) + 0.5
     py = y0.index_select(0, gauss) + row + 0.5
-    return px, py, _alpha_of(_columns_at(means2d, conics, opacities, gauss), px, py) > 0
+    pix = ((py - 0.5) * width + (px - 0.5)).int()
+    return pix, _alpha_of(_columns_at(means2d, conics, opacities, gauss), px, py) > 0
 
 
 def _composite(
@@ -323,14 +330,16 @@ def _composite(
     opacities: torch.Tensor,
     colors: torch.Tensor,
     pairs: tuple[torch.Tensor, ...],
+    width: int,
     n_pix: int,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Front-to-back compositing over the pairs ``(gauss, pix, px, py, starts, seg)`` of :class:`_Pairs`, with
-    the Gaussians' means2d (M, 2), conics (M, 3), opacities (M,) and colors (M, 3).
+    """Front-to-back compositing over the pairs ``(gauss, pix, starts, seg)`` of :class:`_Pairs` in an image
+    ``width`` pixels wide, with the Gaussians' means2d (M, 2), conics (M, 3), opacities (M,) and colors (M, 3).
 
     -> (colour (n_pix, 3) before the background, log transmittance (n_pix,))."""
-    gauss, pix, px, py, starts, seg = pairs
+    gauss, pix, starts, seg = pairs
     dt = means2d.dtype
+    px, py = _centres(pix, width, torch.float64 if n_pix > EXACT_HALVES_FLOAT32 else dt)
     alpha = _alpha_of(_columns_at(means2d, conics, opacities, gauss), px.to(dt), py.to(dt))
     log1m = torch.log1p(-alpha).double()  # transmittance in log space: a segmented cumsum per pixel
     incl = torch.cumsum(log1m, 0)
@@ -349,8 +358,8 @@ def rasterize(
     -> (image (H, W, 3), alpha (H, W))."""
     pairs = _pixel_pairs(p, width, height, compiled=compiled)
     composite = fast(_composite, _probe_composite) if compiled and len(pairs.pix) > 1 else _composite
-    fields = (pairs.gauss, pairs.pix, pairs.px, pairs.py, pairs.starts, pairs.seg)
-    C, logT = composite(p.means2d, p.conics, p.opacities, p.colors, fields, width * height)
+    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.seg)
+    C, logT = composite(p.means2d, p.conics, p.opacities, p.colors, fields, width, width * height)
     T = torch.exp(logT)
     return (C + T[:, None] * background).view(height, width, 3), (1 - T).view(height, width)
 
@@ -403,8 +412,10 @@ def _probe_inputs() -> tuple[Projected, _Pairs]:
 
 def _probe_composite(compiled: Callable) -> None:
     p, pairs = _probe_inputs()
-    fields = (pairs.gauss, pairs.pix, pairs.px, pairs.py, pairs.starts, pairs.seg)
-    C, logT = compiled(p.means2d, p.conics, p.opacities, p.colors, fields, PROBE_SIDES[0] * PROBE_SIDES[1])
+    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.seg)
+    C, logT = compiled(
+        p.means2d, p.conics, p.opacities, p.colors, fields, PROBE_SIDES[0], PROBE_SIDES[0] * PROBE_SIDES[1]
+    )
     (C.sum() + logT.sum()).backward()
 
 
@@ -423,6 +434,7 @@ def _probe_candidates(compiled: Callable) -> None:
             torch.full((n,), 2.0),
             start,
             torch.arange(n, dtype=torch.int32).repeat_interleave(4).clone(),  # not a view: as in a fit
+            PROBE_SIDES[0],
         )
 
 
