@@ -195,3 +195,38 @@ def test_a_removed_command_fails_the_tests_that_need_it(monkeypatch):
     with pytest.raises(AssertionError, match="sparself train"):
         test_bad_input.need("plan", "train")
     test_bad_input.need("plan")
+
+
+@pytest.mark.parametrize(("user", "expected"), [(None, "10000"), ("123", "123")])
+def test_a_command_shortens_the_openmp_spin_before_torch_loads_and_keeps_a_users_own(user, expected):
+    """torch's spinning OpenMP threads take the cores from the fit workers beside them; libgomp reads its
+    setting once, when torch loads, so the command must set it first, and never over the user's."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "GOMP_SPINCOUNT"} | ({"GOMP_SPINCOUNT": user} if user else {})
+    code = (
+        "import os, sys\n"
+        "from sparself import cli\n"
+        "assert 'torch' not in sys.modules\n"
+        "cli.main([])\n"
+        "import torch\n"
+        "print('spin', os.environ.get('GOMP_SPINCOUNT'))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-1] == f"spin {expected}"
+
+
+def test_a_process_with_torch_loaded_keeps_its_environment(monkeypatch):
+    """In-process callers (a notebook, the tests) have loaded torch already: setting the spin then would do
+    nothing but leak into their environment."""
+    import os
+
+    import torch  # noqa: F401 - loaded, as in such a caller
+
+    from sparself import cli
+
+    monkeypatch.delenv("GOMP_SPINCOUNT", raising=False)
+    cli.short_openmp_spin()
+    assert "GOMP_SPINCOUNT" not in os.environ
