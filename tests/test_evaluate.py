@@ -471,3 +471,48 @@ def test_what_each_seed_writes_is_fitted_beside_the_other_checks_as_it_is_alone(
         assert (workers, cfg.inputs[0] + 2) in pooled  # the kept views' fit went to the checks' pool
     assert got[1] == got[2]
     assert got[1][0] != base[0] and got[1][1] == base[1]
+
+
+@pytest.mark.parametrize("check_workers", [2, 1])
+def test_the_rows_and_the_checks_fit_in_one_pool_where_they_would_start_as_many_workers(
+    tmp_path, monkeypatch, check_workers
+):
+    # workers spawn and compile once per pool: the self-check takes the rows' pool when it would start as many,
+    # and its own pool when not (a --check-workers of its own)
+    from sparself.evaluation import checked, densification
+    from sparself.evaluation.selfcheck import Checked
+    from sparself.recon.pool import FitPool, Fitter
+
+    def keeping(inputs, planned, plan, synth, cfg, sources=None, fits=None, other=None):
+        return planned, Checked(planned[:1], np.asarray(synth(inputs, planned[:1])), None, None), None
+
+    started, used = [], []
+    real_enter, real_run = FitPool.__enter__, FitPool.run
+
+    def entering(self):
+        started.append(self.workers)
+        return real_enter(self)
+
+    def running(self, jobs):
+        used.append((id(self), len(jobs)))
+        return real_run(self, jobs)
+
+    hooks, _ = _hooks()
+    splat = dict(steps=0, min_steps_per_view=4, init_points=150, max_gaussians=300, progress=False, seed=0)
+    hooks["reconstructors"] = {"3dgs": Fitter("splat", splat)}
+    capture, cfg = _capture(tmp_path / "cap"), _tiny_cfg(densify_baselines=(), weighted=False, seeds=2)
+    monkeypatch.setattr(checked, "checked_views", keeping)
+    monkeypatch.setattr(checked, "check_workers", lambda cfg: check_workers)
+    for module in (checked, densification):
+        monkeypatch.setattr(module, "side_by_side", lambda name: 2)
+    monkeypatch.setattr(FitPool, "__enter__", entering)
+    monkeypatch.setattr(FitPool, "run", running)
+    ev.evaluate([capture], tmp_path / "out", cfg, **hooks)
+    rows_pool = used[0][0]
+    assert used[0][1] > 2  # the rows' fits, all at once
+    written = [pool for pool, n in used[1:] if n == 1]  # each seed's kept view, fitted in the checks' pool
+    assert len(written) == 2
+    if check_workers == 2:
+        assert started == [2] and written == [rows_pool, rows_pool]
+    else:
+        assert started == [2, 1] and rows_pool not in written

@@ -12,6 +12,7 @@ the fixer was used, its views at the held-out poses are scored too
 from __future__ import annotations
 
 import logging
+from contextlib import nullcontext
 from dataclasses import replace
 from functools import partial
 from typing import Callable, Literal
@@ -86,12 +87,17 @@ def _fixed_targets(ev: SceneEval, k: int, checked: Checked, cfg: SelfCheckConfig
 
 
 def checked_fits(
-    ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, base: dict[int, ScoredSet]
+    ev: SceneEval,
+    rname: str,
+    fit: Callable[[Scene], Renderer],
+    entry: ReconResult,
+    base: dict[int, ScoredSet],
+    rows_pool: FitPool | None = None,
 ) -> None:
     """Per seed: what densify writes for ``rname``, fitted and scored on the held-out photos, into
     ``entry``'s NETWORK_CHECKED row (each seed's self-check record as its decision), and the fixer's views
     into its NETWORK_FIXED row where it was used. ``base``: each seed's N-only fit, the row where nothing
-    is kept."""
+    is kept. ``rows_pool``: the rows' pool, whose started workers the checks use where they would start as many."""
     seeds = ev.cfg.seed_list[: len(ev.net_synths)]
     first = check_config(ev, rname, seeds[0]) if seeds else None
     if first is None:
@@ -100,7 +106,8 @@ def checked_fits(
     plan = PlanConfig(n_mid=ev.cfg.n_mid, n_extra=ev.cfg.n_extra, order="capture")
     sets, views = SeededSets(), SeededSets()
     fixed_views: list[ScoredSet | None] = []
-    with FitPool(check_workers(first)) as pool:
+    workers = check_workers(first)
+    with nullcontext(rows_pool) if rows_pool is not None and rows_pool.workers == workers else FitPool(workers) as pool:
         memos: dict[tuple, FitMany] = {}  # the fits without views recur with every seed of the same fit seed
 
         def fits_for(c: SelfCheckConfig) -> FitMany:

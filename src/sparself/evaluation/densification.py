@@ -35,6 +35,7 @@ from sparself.evaluation.results import (
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.weighting import choose_weight, validation_views, weighted_scene
 from sparself.recon import Renderer
+from sparself.recon.pool import FitPool, Fitter, side_by_side
 
 log = logging.getLogger(__name__)
 
@@ -74,10 +75,16 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
     """Fit ``rname`` on every densified scene and score its renders at the held-out poses, into ``entry``
     (which keeps what was done if a fit fails: the seeds fitted so far, unsummarised). Every row is per seed,
     fitted with that seed's reconstruction seed; a reconstructor that takes no seed fits the rows without
-    the network's views once (a single set, as without seeds)."""
+    the network's views once (a single set, as without seeds). The rows' fits and the self-check's share one
+    pool: its workers start, and compile the CPU 3DGS, once."""
+    with FitPool(side_by_side(fit.name) if isinstance(fit, Fitter) else 1) as pool:
+        _fitted_rows(ev, rname, fit, entry, pool)
+
+
+def _fitted_rows(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, pool: FitPool):
     seeds, each = ev.cfg.seed_list, paired(fit)
     runs = densified_scenes(ev, seeds if each else seeds[:1])
-    fitted = fit_each(fit, [sc for _, _, sc in runs], [fit_seed(ev.cfg, s) for _, s, _ in runs])
+    fitted = fit_each(fit, [sc for _, _, sc in runs], [fit_seed(ev.cfg, s) for _, s, _ in runs], pool)
     for (key, seed, sc), renderer in tqdm(
         zip(runs, fitted), total=len(runs), desc=f"{ev.name}: {rname} fits", disable=not ev.cfg.progress, leave=False
     ):
@@ -105,7 +112,7 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
             row.summarized = True
     if ev.cfg.weighted and ev.net_planned:
         try:
-            weighted_fits(ev, rname, fit, entry)
+            weighted_fits(ev, rname, fit, entry, pool)
         except Exception as e:  # the plain results stand without it
             log.warning("%s: %s weighted densification failed: %s", ev.name, rname, e)
             entry.rows[NETWORK_WEIGHTED] = RowError(f"{type(e).__name__}: {e}")
@@ -117,7 +124,7 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
             else dict.fromkeys(seeds, base)
         )
         try:
-            checked_fits(ev, rname, fit, entry, by_seed)
+            checked_fits(ev, rname, fit, entry, by_seed, pool)
         except Exception as e:  # the other rows stand without it
             log.warning("%s: %s checked densification failed: %s", ev.name, rname, e)
             entry.rows[NETWORK_CHECKED] = RowError(f"{type(e).__name__}: {e}")
@@ -130,7 +137,9 @@ def render_targets(ev: SceneEval, renderer) -> np.ndarray:
     return renders(renderer, ev.full, ev.targets)
 
 
-def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult) -> None:
+def weighted_fits(
+    ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, pool: FitPool | None = None
+) -> None:
     """'N + sparself, weighted': per seed, the inputs + its views (synthesized from all inputs) with their
     confidence as per-pixel loss weights and the synthetic-frame weight :func:`choose_weight` picked on the
     run's first seed (its network's views synthesized again without the held-back inputs)."""
@@ -142,7 +151,7 @@ def weighted_fits(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], e
     sets = SeededSets()
     seeds = ev.cfg.seed_list[: len(ev.net_planned)]
     scenes = [weighted_scene(ev.inputs, ev.planned, v, c, choice.weight) for v, c in zip(ev.net_planned, ev.net_conf)]
-    for seed, sc, r in zip(seeds, scenes, fit_each(fit, scenes, [fit_seed(ev.cfg, s) for s in seeds])):
+    for seed, sc, r in zip(seeds, scenes, fit_each(fit, scenes, [fit_seed(ev.cfg, s) for s in seeds], pool)):
         label = f"{rname} {len(sc)} views ({NETWORK_WEIGHTED} seed {seed})"
         scored = ev.score(render_targets(ev, r), label, ev.scored, seed=seed, views=len(sc))
         scored.decision = choice
