@@ -250,7 +250,7 @@ class _Pairs:
     gauss: torch.Tensor
     pix: torch.Tensor
     starts: torch.Tensor  # (S,) the first pair of each pixel with any
-    seg: torch.Tensor  # (P,) each pair's pixel among those S
+    first_pix: torch.Tensor  # (S,) those pixels
 
 
 def _centres(pix: torch.Tensor, width: int, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
@@ -295,9 +295,8 @@ def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26
         gauss, pix = gauss.index_select(0, keep.index_select(0, sort)).long(), pix.long()
         first = torch.ones_like(pix, dtype=torch.bool)
         first[1:] = pix[1:] != pix[:-1]
-        seg = torch.cumsum(first, 0) - 1
         starts = torch.nonzero(first).squeeze(1)
-        return _Pairs(gauss, pix, starts, seg)
+        return _Pairs(gauss, pix, starts, pix.index_select(0, starts))
 
 
 def _candidates(
@@ -333,17 +332,20 @@ def _composite(
     width: int,
     n_pix: int,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Front-to-back compositing over the pairs ``(gauss, pix, starts, seg)`` of :class:`_Pairs` in an image
+    """Front-to-back compositing over the pairs ``(gauss, pix, starts, first_pix)`` of :class:`_Pairs` in an image
     ``width`` pixels wide, with the Gaussians' means2d (M, 2), conics (M, 3), opacities (M,) and colors (M, 3).
 
     -> (colour (n_pix, 3) before the background, log transmittance (n_pix,))."""
-    gauss, pix, starts, seg = pairs
+    gauss, pix, starts, first_pix = pairs
     dt = means2d.dtype
     px, py = _centres(pix, width, torch.float64 if n_pix > EXACT_HALVES_FLOAT32 else dt)
     alpha = _alpha_of(_columns_at(means2d, conics, opacities, gauss), px.to(dt), py.to(dt))
     log1m = torch.log1p(-alpha).double()  # transmittance in log space: a segmented cumsum per pixel
     incl = torch.cumsum(log1m, 0)
-    incl = incl - (incl - log1m).index_select(0, starts).index_select(0, seg)  # from each pixel's first pair
+    # from each pixel's first pair: its exclusive sum there, spread over the pixel's pairs through an image
+    # (a per-pair segment number would cost a cumsum over every pair)
+    before = torch.zeros(n_pix, dtype=incl.dtype).index_copy(0, first_pix, (incl - log1m).index_select(0, starts))
+    incl = incl - before.index_select(0, pix)
     use = (incl > math.log(T_MIN)).to(dt)  # a pixel stops before its transmittance falls to 1e-4
     w = alpha * use * torch.exp((incl - log1m).to(dt))
     C = torch.zeros(n_pix, 3, dtype=dt).index_add(0, pix, w[:, None] * colors.index_select(0, gauss))
@@ -358,7 +360,7 @@ def rasterize(
     -> (image (H, W, 3), alpha (H, W))."""
     pairs = _pixel_pairs(p, width, height, compiled=compiled)
     composite = fast(_composite, _probe_composite) if compiled and len(pairs.pix) > 1 else _composite
-    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.seg)
+    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.first_pix)
     C, logT = composite(p.means2d, p.conics, p.opacities, p.colors, fields, width, width * height)
     T = torch.exp(logT)
     return (C + T[:, None] * background).view(height, width, 3), (1 - T).view(height, width)
@@ -412,7 +414,7 @@ def _probe_inputs() -> tuple[Projected, _Pairs]:
 
 def _probe_composite(compiled: Callable) -> None:
     p, pairs = _probe_inputs()
-    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.seg)
+    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.first_pix)
     C, logT = compiled(
         p.means2d, p.conics, p.opacities, p.colors, fields, PROBE_SIDES[0], PROBE_SIDES[0] * PROBE_SIDES[1]
     )
