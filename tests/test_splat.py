@@ -364,6 +364,19 @@ def test_large_images_find_the_same_pairs_in_float64(monkeypatch):
         assert a.dtype == torch.float32 and torch.equal(a.double(), b)
 
 
+def test_images_whose_pixel_centres_need_float64_composite_the_same_image(monkeypatch):
+    from sparself.recon import splat
+
+    cam = Camera.pinhole(48, 36, 40.0)
+    g = _random_gaussians(150, 0)
+    g = type(g)(**{k: getattr(g, k).float() for k in ("means", "quats", "log_scales", "opacity_logits", "sh")})
+    pose = Pose.from_center(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    small, _ = render_gaussians(g, pose, cam, torch.zeros(3), 1)
+    monkeypatch.setattr(splat, "EXACT_HALVES_FLOAT32", 0)  # as if the image had more than 2^23 pixels
+    large, _ = render_gaussians(g, pose, cam, torch.zeros(3), 1)
+    assert float(small.max()) > 0.1 and torch.equal(small, large)
+
+
 @pytest.mark.parametrize(("width", "dtype"), [(4099, torch.float32), (4099, torch.float64), (7, torch.float32)])
 def test_pixel_centres_are_the_column_and_row_of_each_index_plus_a_half(width, dtype):
     """Exact for every index the composite gives them in float32 (up to 2^23), the last column of each row
