@@ -438,7 +438,7 @@ def test_the_seeds_3dgs_self_checks_run_in_turns_on_two_workers_decide_as_one_af
 def test_what_each_seed_writes_is_fitted_beside_the_other_checks_as_it_is_alone(tmp_path, monkeypatch):
     # the fit of a seed's kept views runs in the checks' pool, beside the other seeds' checks: it must score
     # as the same fit made on its own, and only for the seed that keeps views
-    from sparself.evaluation import checked
+    from sparself.evaluation import checked, instruments
     from sparself.evaluation.selfcheck import Checked
     from sparself.recon.pool import FitPool, Fitter
 
@@ -463,7 +463,7 @@ def test_what_each_seed_writes_is_fitted_beside_the_other_checks_as_it_is_alone(
     got = {}
     for workers in (1, 2):
         monkeypatch.setattr(checked, "check_workers", lambda cfg, w=workers: w)
-        monkeypatch.setattr(checked, "side_by_side", lambda name, w=workers: w)
+        monkeypatch.setattr(instruments, "side_by_side", lambda name, w=workers: w)
         pooled.clear()
         rows = ev.evaluate([capture], tmp_path / f"out{workers}", cfg, **hooks).scenes[0].densification["3dgs"].rows
         got[workers] = [p.raw_mean("psnr") for p in rows["sparself_checked"].per_seed]
@@ -479,7 +479,7 @@ def test_the_rows_and_the_checks_fit_in_one_pool_where_they_would_start_as_many_
 ):
     # workers spawn and compile once per pool: the self-check takes the rows' pool when it would start as many,
     # and its own pool when not (a --check-workers of its own)
-    from sparself.evaluation import checked, densification
+    from sparself.evaluation import checked, instruments
     from sparself.evaluation.selfcheck import Checked
     from sparself.recon.pool import FitPool, Fitter
 
@@ -503,8 +503,7 @@ def test_the_rows_and_the_checks_fit_in_one_pool_where_they_would_start_as_many_
     capture, cfg = _capture(tmp_path / "cap"), _tiny_cfg(densify_baselines=(), weighted=False, seeds=2)
     monkeypatch.setattr(checked, "checked_views", keeping)
     monkeypatch.setattr(checked, "check_workers", lambda cfg: check_workers)
-    for module in (checked, densification):
-        monkeypatch.setattr(module, "side_by_side", lambda name: 2)
+    monkeypatch.setattr(instruments, "side_by_side", lambda name: 2)
     monkeypatch.setattr(FitPool, "__enter__", entering)
     monkeypatch.setattr(FitPool, "run", running)
     ev.evaluate([capture], tmp_path / "out", cfg, **hooks)

@@ -21,7 +21,7 @@ import numpy as np
 
 from sparself.capture.scene import Frame, Scene
 from sparself.evaluation.fixing import fixed
-from sparself.evaluation.instruments import fit_each, fit_seed, renders, with_images
+from sparself.evaluation.instruments import fit_each, fit_seed, fits_at_once, renders, with_images
 from sparself.evaluation.results import AT_VIEWS, NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.selfcheck import (
@@ -37,7 +37,7 @@ from sparself.evaluation.selfcheck import (
     remembering,
 )
 from sparself.recon import Renderer
-from sparself.recon.pool import FitPool, Fitter, side_by_side
+from sparself.recon.pool import FitPool
 from sparself.synthesis.plan import PlanConfig
 
 log = logging.getLogger(__name__)
@@ -161,7 +161,7 @@ def _checked_and_fitted(
     if not checked.frames:
         return checked, None
     scene = with_images(ev.inputs, checked.frames, checked.images, checked.confidence)
-    shared = pool if isinstance(fit, Fitter) and side_by_side(fit.name) > 1 else None
+    shared = pool if fits_at_once(fit) > 1 else None
     return checked, next(iter(fit_each(fit, [scene], [seed], shared)))
 
 

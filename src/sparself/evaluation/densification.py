@@ -15,6 +15,7 @@ from sparself.evaluation.checked import checked_fits
 from sparself.evaluation.instruments import (
     fit_each,
     fit_seed,
+    fits_at_once,
     paired,
     reconstructor,
     renders,
@@ -35,7 +36,7 @@ from sparself.evaluation.results import (
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.weighting import choose_weight, validation_views, weighted_scene
 from sparself.recon import Renderer
-from sparself.recon.pool import FitPool, Fitter, side_by_side
+from sparself.recon.pool import FitPool
 
 log = logging.getLogger(__name__)
 
@@ -77,11 +78,13 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
     fitted with that seed's reconstruction seed; a reconstructor that takes no seed fits the rows without
     the network's views once (a single set, as without seeds). The rows' fits and the self-check's share one
     pool: its workers start, and compile the CPU 3DGS, once."""
-    with FitPool(side_by_side(fit.name) if isinstance(fit, Fitter) else 1) as pool:
+    with FitPool(fits_at_once(fit)) as pool:
         _fitted_rows(ev, rname, fit, entry, pool)
 
 
-def _fitted_rows(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, pool: FitPool):
+def _fitted_rows(
+    ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], entry: ReconResult, pool: FitPool
+) -> None:
     seeds, each = ev.cfg.seed_list, paired(fit)
     runs = densified_scenes(ev, seeds if each else seeds[:1])
     fitted = fit_each(fit, [sc for _, _, sc in runs], [fit_seed(ev.cfg, s) for _, s, _ in runs], pool)

@@ -19,7 +19,7 @@ from sparself.core.errors import ConfigError, InputError
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
 from sparself.recon import Renderer, backend, get_reconstructor
-from sparself.recon.pool import FitPool, Fitter
+from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.baselines import BASELINES
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import train
@@ -128,6 +128,12 @@ def fit_each(
     given; by ``pool`` when given, else a pool of its own); one after the other as they are read for any other
     ``fit`` (a test's, which takes no seed)."""
     return fit.many(scenes, pool, seeds) if isinstance(fit, Fitter) else (fit(sc) for sc in scenes)
+
+
+def fits_at_once(fit: Callable[[Scene], Renderer]) -> int:
+    """How many fits of ``fit`` pay to run at once here: :func:`~sparself.recon.pool.side_by_side` for a
+    reconstructor with its settings, 1 for any other ``fit`` (a test's, which runs in this process)."""
+    return side_by_side(fit.name) if isinstance(fit, Fitter) else 1
 
 
 def fit_seed(cfg: EvalConfig, seed: int) -> int:
