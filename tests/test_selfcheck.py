@@ -111,6 +111,24 @@ def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkey
     assert min(float(np.mean(m < 0.9 * rec.weight - 0.05)) for m in masks) > 0.1
 
 
+def test_a_later_round_of_render_fix_refit_is_recorded_and_when_not_kept_changes_nothing_written(tmp_path, monkeypatch):
+    one = _densify(tmp_path / "one", monkeypatch, _exact)
+    two = _densify(tmp_path / "two", monkeypatch, _exact, check=replace(MPI, fix_rounds=2))
+    rec = read_selfcheck(tmp_path / "two" / "out" / "scene")
+    # exact views: no fixer beats them, in the first round or in the second, with the fits with them rendered
+    [round_] = rec.rounds
+    assert round_.psnr_after is None and not round_.kept and not round_.fixer.used
+    assert round_.fixer.held_back == rec.validation and round_.fixer.psnr_render > rec.psnr_without
+    assert (
+        "round 2's fixer did not beat both" in rec.reason
+        and rec.kept == read_selfcheck(tmp_path / "one" / "out" / "scene").kept
+    )
+    for a, b in zip(one.frames, two.frames):
+        assert a.name == b.name and (
+            not a.synthetic or np.array_equal(one.load(one.frames.index(a)), two.load(two.frames.index(b)))
+        )
+
+
 def test_confirmed_views_are_written_and_unconfirmed_ones_are_not(tmp_path, monkeypatch):
     from sparself.evaluation import selfcheck
 
@@ -470,7 +488,7 @@ def _confirming(monkeypatch, psnr_with, cfg: SelfCheckConfig, kept=(0, 2)):
     monkeypatch.setattr(selfcheck, "held_back_psnr", psnr)
     keep = np.zeros(len(planned), bool)
     keep[list(kept)] = True
-    c, left = selfcheck._confirmation(scene, small, planned, keep, 1.0, synth, fits, None, cfg)
+    c, left = selfcheck._confirmation(scene, small, planned, keep, 1.0, synth, fits, selfcheck._Fixers(None, 1.0), cfg)
     return c, left, seen, scene
 
 

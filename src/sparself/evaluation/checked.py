@@ -72,6 +72,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         confirm_prune=ev.cfg.check_confirm_prune,
         max_photo_loss=ev.cfg.check_max_photo_loss,
         ends_context=ev.cfg.check_ends_context,
+        fix_rounds=ev.cfg.check_fix_rounds,
     )
 
 

@@ -118,6 +118,11 @@ class EvalConfig:
         "the checked row's self-check judges the views past the ends beside the views between the inputs "
         "(densify --ends-context; auto: for the 3DGS)",
     )
+    check_fix_rounds: int = option(
+        1,
+        "rounds of render -> fix -> refit in the checked row's self-check, each kept while it raises the folds' "
+        "held-back photos (densify --fix-rounds)",
+    )
     check_steps: int = option(300, "optimisation steps of each self-check fit of the checked row (densify's default)")
     check_size: int = option(64, "long side in px of the checked row's self-check fits (densify's default)")
     oracle: bool = option(True, "the oracle densification: N + the real photos at the planned poses")
@@ -165,6 +170,8 @@ class EvalConfig:
             raise ConfigError(
                 f"check_steps must be >= 1 and check_size >= 8, got {self.check_steps}, {self.check_size}"
             )
+        if self.check_fix_rounds < 1:
+            raise ConfigError(f"check_fix_rounds must be at least 1, got {self.check_fix_rounds}")
         if self.first_seed < 0:
             raise ConfigError(f"first_seed must not be negative, got {self.first_seed}")
         if self.extrapolation_margin is not None and self.extrapolation_margin < 0:

@@ -12,7 +12,7 @@ trained on all of them.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -92,6 +92,12 @@ def fixer_pairs(
     rend = renders(base, small, [small.frames[i] for i in held])
     truth = np.stack([small.load(i) for i in held])
     return FixerPairs(tuple(small.frames[i].name for i in held), *(to_tensor(a) for a in (v, rend, c, truth)))
+
+
+def refit_pairs(pairs: FixerPairs, small: Scene, held: list[int], fit: Renderer) -> FixerPairs:
+    """``pairs`` (at ``small``'s positions ``held``) with the renders of ``fit`` there instead: the same views
+    and photos, the render of another fit without those photos (one with synthesized views, for a later round)."""
+    return replace(pairs, render=to_tensor(renders(fit, small, [small.frames[i] for i in held])))
 
 
 def _psnrs(pred: torch.Tensor, truth: torch.Tensor) -> np.ndarray:

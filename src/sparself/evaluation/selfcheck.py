@@ -67,13 +67,13 @@ import numpy as np
 import torch
 
 from sparself.capture.images import resize_images
-from sparself.capture.io.dense import Confirmation, GapTrend, SelfCheck, ViewCheck
+from sparself.capture.io.dense import Confirmation, FixRound, GapTrend, SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain, standard_error
 from sparself.core.options import check_choices, option
 from sparself.evaluation.config import Gap, KeepRule, PixelWeights
-from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, validated_fixer
+from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, refit_pairs, validated_fixer
 from sparself.evaluation.folds import (
     beyond,
     check_folds,
@@ -93,6 +93,7 @@ from sparself.evaluation.weighting import (
     validation_inputs,
     validation_split,
     weight_scenes,
+    weighted_scene,
 )
 from sparself.model.fixer import Fixer
 from sparself.recon import Renderer, backend
@@ -190,6 +191,14 @@ class SelfCheckConfig:
         "merge each view with the render of the fit without it, pixel by pixel, by a small network trained on "
         "the held-back input photos (used only when it beats both the views and the render there)",
     )
+    fix_rounds: int = option(
+        1,
+        "rounds of render -> fix -> refit (with the fixer): after a round, each fold is fitted with that round's "
+        "views, a new fixer is trained on the held-back photos with those fits' renders and merges the network's "
+        "views with them at the views' poses; a round is kept while it raises the folds' held-back photos by more "
+        "than its spread over them (one more fit per fold and round, and one per confirmation fold and for the "
+        "written views)",
+    )
     gain_gap: Gap = option(
         "own",
         "where a view's gain is measured: inside its own gap (own: the fold holds a neighbour of the view back, "
@@ -223,6 +232,8 @@ class SelfCheckConfig:
 
     def validate(self) -> None:
         check_choices(self)
+        if self.fix_rounds < 1:
+            raise ConfigError(f"fix_rounds must be >= 1, got {self.fix_rounds}")
         if self.check_workers is not None and self.check_workers < 1:
             raise ConfigError(f"check_workers must be >= 1, got {self.check_workers}")
         if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
@@ -472,6 +483,7 @@ class _Fold:
     reference: np.ndarray  # (V, h, w, 3)
     pairs: FixerPairs | None
     context: _Context | None = None  # views fitted beside its own in each of its fits (base included)
+    raw: ValidationViews | None = None  # the network's views before any fixer (what every round's fixer merges)
 
     @property
     def at_scored(self) -> list[int]:
@@ -504,7 +516,7 @@ def _fold(
     made = _at_check_size(small, frames, images[:v], None if conf is None else conf[:v], train)
     made_pairs = fixer_pairs(small, held, base, images[v:], None if conf is None else conf[v:]) if pairs else None
     scored = measuring_photos(small, [planned[i] for i in views], held)
-    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), made_pairs, context)
+    return _Fold(held, base, views, scored, frames, made, renders(base, small, frames), made_pairs, context, made)
 
 
 def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold], FixerFit | None]:
@@ -514,16 +526,22 @@ def _fixed_folds(folds: list[_Fold], cfg: SelfCheckConfig) -> tuple[list[_Fold],
     pairs = [f.pairs for f in folds if f.pairs is not None]  # every fold's, with the fixer on
     if not cfg.fixer or len(pairs) < len(folds):
         return folds, None
-    starts = np.cumsum([0] + [len(p) for p in pairs])
-    groups = [list(range(a, b)) for a, b in zip(starts[:-1], starts[1:])] if len(folds) > 1 else None
-    fix = validated_fixer(FixerPairs.cat(pairs), FIXER_STEPS, cfg.check_seed, groups)
+    fix, each = _fold_fixers(pairs, cfg)
     if fix.fixer is None:
         return folds, fix
-    out = []
-    for k, f in enumerate(folds):
-        fx = fix.held_out[k] if groups is not None else fix.fixer
-        out.append(replace(f, synthesized=_fixed_views(fx, f.synthesized, f.reference)))
-    return out, fix
+    return [replace(f, synthesized=_fixed_views(fx, f.synthesized, f.reference)) for f, fx in zip(folds, each)], fix
+
+
+def _fold_fixers(pairs: list[FixerPairs], cfg: SelfCheckConfig) -> tuple[FixerFit, list[Fixer]]:
+    """The fixer validated on every fold's ``pairs`` (:func:`validated_fixer`, each fold's scored by one trained
+    on the others; leave-one-out when there is one fold) and the fixer that fixes each fold's views: the one
+    that scored it (the one trained on every pair with one fold; none when it is not used)."""
+    starts = np.cumsum([0] + [len(p) for p in pairs])
+    groups = [list(range(a, b)) for a, b in zip(starts[:-1], starts[1:])] if len(pairs) > 1 else None
+    fix = validated_fixer(FixerPairs.cat(pairs), FIXER_STEPS, cfg.check_seed, groups)
+    if fix.fixer is None:
+        return fix, []
+    return fix, [fix.held_out[k] if groups is not None else fix.fixer for k in range(len(pairs))]
 
 
 def _fixed_views(fixer: Fixer, views: ValidationViews, reference: np.ndarray) -> ValidationViews:
@@ -535,6 +553,108 @@ def _lowered(views: ValidationViews, reference: np.ndarray, cfg) -> ValidationVi
     """``views`` with their confidence lowered where they agree with the renders at their poses
     (``reference``: (V, h, w, 3); :func:`_fitted_confidence`), as every fit of the check uses them."""
     return replace(views, confidence=_fitted_confidence(views.images, views.confidence, reference, cfg))
+
+
+@dataclass
+class _Fixers:
+    """The fixers every view goes through: the first round's (None: not used) merges the network's view with
+    the render of the fit without it; each later one with the render of that fit refitted with the previous
+    round's views at ``weight`` (:func:`_refixed`); ``rounds``: each later round tried."""
+
+    first: Fixer | None
+    weight: float
+    later: tuple[Fixer, ...] = ()
+    rounds: tuple[FixRound, ...] = ()
+
+    @property
+    def last(self) -> Fixer | None:
+        """The fixer that merges the views last (None: none is used)."""
+        return self.later[-1] if self.later else self.first
+
+
+def _fold_scene(small: Scene, f: _Fold, w: float, cfg) -> Scene:
+    """The fold's inputs with its views at weight ``w`` (their confidence lowered as in every fit of the
+    check), beside its context."""
+    views = _lowered(f.synthesized, f.reference, cfg)
+    return _with_context(weight_scenes(small, f.frames, views, [w], f.held)[0], f.context)
+
+
+def _refixed(small: Scene, folds: list[_Fold], fix: FixerFit | None, fits: FitMany, cfg) -> tuple[list[_Fold], _Fixers]:
+    """Later rounds of render -> fix -> refit (``cfg.fix_rounds``): each fold is fitted with its views; a fixer
+    is trained on the held-back photos' network views and those fits' renders there (validated as the first
+    round's, :func:`_fold_fixers`) and merges each fold's network views with those fits' renders at their
+    poses; the folds are fitted again with the merges, and the round is kept when that raises their scored
+    photos by more than its spread (:func:`~sparself.core.metrics.clear_gain`); the rounds stop at the first
+    that is not."""
+    fixers = _Fixers(None if fix is None else fix.fixer, max(weights_of(cfg)))
+    pairs = [f.pairs for f in folds if f.pairs is not None]
+    raws = [f.raw for f in folds if f.raw is not None]
+    if cfg.fix_rounds < 2 or fix is None or len(pairs) < len(folds) or len(raws) < len(folds):
+        return folds, fixers
+    fitted = fits([_fold_scene(small, f, fixers.weight, cfg) for f in folds])
+    for k in range(2, cfg.fix_rounds + 1):
+        before = np.concatenate([held_back_psnr(small, r, f.scored) for f, r in zip(folds, fitted)])
+        fit, each = _fold_fixers([refit_pairs(p, small, f.held, r) for p, f, r in zip(pairs, folds, fitted)], cfg)
+        if fit.fixer is None:
+            fixers = replace(fixers, rounds=fixers.rounds + (FixRound(fit.record, float(before.mean()), None, False),))
+            break
+        again = [
+            replace(f, synthesized=_fixed_views(fx, raw, renders(r, small, f.frames)))
+            for f, raw, fx, r in zip(folds, raws, each, fitted)
+        ]
+        refitted = fits([_fold_scene(small, f, fixers.weight, cfg) for f in again])
+        after = np.concatenate([held_back_psnr(small, r, f.scored) for f, r in zip(again, refitted)])
+        kept = clear_gain(after - before, 0.0)
+        log.info(
+            "self-check: round %d of render -> fix -> refit: the folds' scored photos %.2f -> %.2f dB (%s)",
+            k,
+            before.mean(),
+            after.mean(),
+            "kept" if kept else "not kept: not more than its spread over them",
+        )
+        record = FixRound(fit.record, float(before.mean()), float(after.mean()), kept)
+        fixers = replace(fixers, rounds=fixers.rounds + (record,))
+        if not kept:
+            break
+        folds, fitted, fixers = again, refitted, replace(fixers, later=fixers.later + (fit.fixer,))
+    return folds, fixers
+
+
+@dataclass
+class _Replay:
+    """Views to take through the later rounds (:func:`_replayed`): their frames, the network's images (any
+    size) and confidence (None: none), the images after the first round, the positions of ``small`` held back
+    (none: every input is fitted) and the fit on the other inputs without views."""
+
+    frames: list[Frame]
+    raw: np.ndarray
+    confidence: np.ndarray | None
+    images: np.ndarray
+    held: list[int]
+    base: Renderer
+
+
+def _replayed(
+    fixers: _Fixers, small: Scene, jobs: list[_Replay], fits: FitMany, cfg
+) -> list[tuple[np.ndarray, Renderer]]:
+    """Each job's views through ``fixers.later``, as :func:`_refixed` made its folds': per round, the inputs
+    (without the held-back ones) are fitted with the previous round's views (every job's at once), and the
+    round's fixer merges the network's views with that fit's renders at their poses.
+    Returns per job (the views, the last fit: its base when there is no later round)."""
+    out = [(j.images, j.base) for j in jobs]
+    for fx in fixers.later:
+        refs = fits([_replay_scene(small, j, images, fixers.weight, cfg) for j, (images, _) in zip(jobs, out)])
+        out = [(fixed(fx, j.raw, renders(r, small, j.frames), j.confidence), r) for j, r in zip(jobs, refs)]
+    return out
+
+
+def _replay_scene(small: Scene, job: _Replay, images: np.ndarray, w: float, cfg) -> Scene:
+    """``small`` without ``job.held`` plus ``images`` at the job's frames and weight ``w``, their confidence
+    lowered where they agree with the render of the job's base (as every fit of the check weights views)."""
+    train = small.without(job.held) if job.held else small
+    views = _at_check_size(small, job.frames, images, job.confidence, train)
+    views = _lowered(views, renders(job.base, small, job.frames), cfg)
+    return weighted_scene(train, job.frames, views.images, views.confidence, w)
 
 
 @dataclass
@@ -714,19 +834,20 @@ def self_check(
         for k, (h, v, b, c) in enumerate(zip(every, views + [v for _, v in wide], bases, ctx))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
+    folds, fixers = _refixed(small, folds, fix, fits, cfg)
     ranked, tried = _pixel_weighted(small, folds, fits, others, cfg)
     tested: list[tuple[_Outcome, SelfCheckConfig]] = []
     for own, scored, c in ranked:  # choosing pixel weights, the other way when the first keeps no view
-        tested.append((_outcome(inputs, small, planned, own, made[len(held) :], scored, synth, fits, fix, c), c))
+        tested.append((_outcome(inputs, small, planned, own, made[len(held) :], scored, synth, fits, fixers, c), c))
         if tested[-1][0].keep.any():
             break
     out, cfg = tested[-1] if tested[-1][0].keep.any() else tested[0]
-    record = _record(small, planned, plan, out, fix, cfg)
+    record = _record(small, planned, plan, out, fix, fixers.rounds, cfg)
     if tried:
         reason = record.reason + _pixel_reason(tried, cfg, tested[0][0] if out is not tested[0][0] else None)
         record = replace(record, psnr_by_pixel_weights=tried, reason=reason)
     (log.info if out.keep.any() else log.warning)("self-check: %s", record.reason)
-    return _written(small, planned, final, out.keep, record, out.folds[0], fix, reference, cfg)
+    return _written(small, planned, final, out.keep, record, out.folds[0], fixers, reference, fits, cfg)
 
 
 @dataclass
@@ -748,7 +869,7 @@ class _Outcome:
     chosen: int
 
 
-def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fix, cfg) -> _Outcome:
+def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fixers: _Fixers, cfg) -> _Outcome:
     """The folds' decisions at the best synthetic-frame weight, gated (:func:`_gated`), and their confirmation
     (none kept when it fails; ``wide``: the gap-trend fold, if any)."""
     weights = _by_weight(scored)
@@ -761,14 +882,14 @@ def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fix, cfg)
         keep[f.views], gains[f.views] = d.keep, d.gains
     chosen, confirmation = int(keep.sum()), None
     if confirm_on(cfg):
-        confirmation, keep = _confirmation(inputs, small, planned, keep, w, synth, fits, fix, cfg)
+        confirmation, keep = _confirmation(inputs, small, planned, keep, w, synth, fits, fixers, cfg)
     if confirmation is not None and not confirmation.confirmed:
         decided, keep = [_dropped(d, s) for d, s in zip(decided, scores)], np.zeros(len(planned), bool)
     return _Outcome(folds, scores, weights, w, trend, decided, unclear, keep, gains, confirmation, chosen)
 
 
 def _confirmation(
-    inputs: Scene, small: Scene, planned: list[Frame], keep: np.ndarray, w: float, synth, fits, fix, cfg
+    inputs: Scene, small: Scene, planned: list[Frame], keep: np.ndarray, w: float, synth, fits, fixers: _Fixers, cfg
 ) -> tuple[Confirmation | None, np.ndarray]:
     """The kept views tested together on the photos no fold held back (:func:`confirm_folds`): per fold, they
     are synthesized again without its photos (and fixed as the written ones are), and the inputs without those
@@ -779,14 +900,18 @@ def _confirmation(
     helds = confirm_folds(len(small), cfg.gain_gap)
     if not helds or not keep.any():
         return None, keep
-    frames, fixer = [planned[i] for i in np.flatnonzero(keep)], None if fix is None else fix.fixer
+    frames, fixer = [planned[i] for i in np.flatnonzero(keep)], fixers.first
     bases = fits([validation_split(small, h)[1] for h in helds])
-    made = []
+    firsts, jobs = [], []
     for held, base in zip(helds, bases):
         _, train = validation_split(inputs, held)
         images, conf = images_and_confidence(synth(train, frames))
         views, reference = _at_check_size(small, frames, images, conf, train), renders(base, small, frames)
-        made.append(_lowered(views if fixer is None else _fixed_views(fixer, views, reference), reference, cfg))
+        first = views if fixer is None else _fixed_views(fixer, views, reference)
+        firsts.append((first, reference))
+        jobs.append(_Replay(frames, views.images, views.confidence, first.images, held, base))
+    again = _replayed(fixers, small, jobs, fits, cfg)  # the later rounds, as the folds' views went through them
+    made = [_lowered(replace(v, images=im), ref, cfg) for (v, ref), (im, _) in zip(firsts, again)]
 
     def change(sub: np.ndarray) -> np.ndarray:
         """(photos,) dB change at the confirmation's photos fitted with the views ``sub`` ((V,) bool)."""
@@ -974,7 +1099,15 @@ def seed_change(scores: list[_Scores]) -> float | None:
     return abs(float(np.concatenate([s.other - s.without for s in scores if s.other is not None]).mean()))
 
 
-def _record(small: Scene, planned: list[Frame], plan: str, out: _Outcome, fix: FixerFit | None, cfg) -> SelfCheck:
+def _record(
+    small: Scene,
+    planned: list[Frame],
+    plan: str,
+    out: _Outcome,
+    fix: FixerFit | None,
+    rounds: tuple[FixRound, ...],
+    cfg,
+) -> SelfCheck:
     """The decision as written to ``sparself.json``: PSNR means over every fold's held-back photos, the
     reason with the gap trend and the confirmation."""
     without = float(np.concatenate([s.without for s in out.scores]).mean())
@@ -987,6 +1120,7 @@ def _record(small: Scene, planned: list[Frame], plan: str, out: _Outcome, fix: F
         reason += _trend_reason(out.trend)
     if out.confirmation is not None:
         reason = _confirm_reason(out.confirmation, out.chosen, cfg.recon, reason)
+    reason += _rounds_reason(rounds)
     return SelfCheck(
         recon=cfg.recon,
         plan=plan,
@@ -1002,20 +1136,42 @@ def _record(small: Scene, planned: list[Frame], plan: str, out: _Outcome, fix: F
         gap_trend=out.trend,
         confirmation=out.confirmation,
         pixel_weights=cfg.pixel_weights,
+        rounds=rounds,
     )
 
 
+def _rounds_reason(rounds: tuple[FixRound, ...]) -> str:
+    """The later rounds of render -> fix -> refit in words (empty: none was tried)."""
+    said = []
+    for k, r in enumerate(rounds, 2):
+        if r.psnr_after is None:
+            said.append(f"round {k}'s fixer did not beat both its views and the renders it merges")
+        else:
+            verdict = "kept" if r.kept else "not kept"
+            said.append(
+                f"round {k} moved the folds' scored photos {r.psnr_before:.2f} -> {r.psnr_after:.2f} dB ({verdict})"
+            )
+    return f"; render -> fix -> refit: {'; '.join(said)}" if said else ""
+
+
 def _written(
-    small, planned, final, keep, record, first: _Fold, fix: FixerFit | None, reference: Renderer | None, cfg
+    small, planned, final, keep, record, first: _Fold, fixers: _Fixers, reference: Renderer | None, fits, cfg
 ) -> Checked:
     """The kept views as written: fixed with the render of ``reference`` (the fit on every input) when the
-    fixer is used, their confidence lowered where they agree with the render of the first fold's fit."""
-    images, conf = images_and_confidence(final)
-    idx = np.flatnonzero(keep)
-    fixer = None if fix is None else fix.fixer
+    first round's fixer is used, then through the later rounds (:func:`_replayed`, the inputs refitted with the
+    kept views), their confidence lowered where they agree with the render of the first fold's fit."""
+    raw, conf = images_and_confidence(final)
+    images, idx = raw, np.flatnonzero(keep)
+    if fixers.first is not None and reference is not None and len(idx):
+        images = fixed(fixers.first, images, renders(reference, small, planned), conf)
+    if fixers.later and reference is not None and len(idx):
+        sub = None if conf is None else conf[idx]
+        job = _Replay([planned[i] for i in idx], raw[idx], sub, images[idx], [], reference)
+        [(last, reference)] = _replayed(fixers, small, [job], fits, cfg)
+        images = np.array(images, np.float32)
+        images[idx] = last
+    fixer = fixers.last
     reference = reference if fixer is not None else None
-    if fixer is not None and reference is not None and len(idx):
-        images = fixed(fixer, images, renders(reference, small, planned), conf)
     exported = _exported(images, conf, renders(first.base, small, planned), record.weight or 1.0, cfg)
     return Checked([planned[i] for i in idx], images[idx], exported[idx], record, fixer, reference)
 

@@ -127,6 +127,24 @@ class Confirmation:
 
 
 @dataclass(frozen=True)
+class FixRound:
+    """One later round of render -> fix -> refit in the self-check (``sparself.json``, in ``selfcheck``): the
+    fixer's test at the held-back photos with the renders of the folds' fits *with* the previous round's
+    views, the folds' mean PSNR at their scored photos fitted with the previous round's views and with this
+    round's (None: not fitted, the fixer was not used), and whether the round was kept (a clear gain)."""
+
+    fixer: FixerCheck
+    psnr_before: float
+    psnr_after: float | None
+    kept: bool
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "FixRound":
+        after = doc.get("psnr_after")
+        return cls(FixerCheck.from_json(doc["fixer"]), float(doc["psnr_before"]), _opt_float(after), bool(doc["kept"]))
+
+
+@dataclass(frozen=True)
 class SelfCheck:
     """The densify self-check's decision and the numbers it was made on (``sparself.json``, key ``selfcheck``).
 
@@ -141,7 +159,8 @@ class SelfCheck:
     gap_trend: the interior views' gain against the width of their gap (None: not measured); confirmation: the
     kept views' test on photos no fold held back (None: not run); pixel_weights: how the views' pixels were
     weighted (confidence, uniform; None: not checked); psnr_by_pixel_weights: (pixel weights, mean PSNR at the
-    best synthetic-frame weight) for each one tried when the check chose between them (empty: not chosen)."""
+    best synthetic-frame weight) for each one tried when the check chose between them (empty: not chosen);
+    rounds: the later rounds of render -> fix -> refit tried (empty: one round)."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -160,6 +179,7 @@ class SelfCheck:
     confirmation: Confirmation | None = None
     pixel_weights: str | None = None
     psnr_by_pixel_weights: tuple[tuple[str, float], ...] = ()
+    rounds: tuple[FixRound, ...] = ()
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -194,6 +214,7 @@ class SelfCheck:
             psnr_by_pixel_weights=tuple(
                 (str(d["pixel_weights"]), float(d["psnr"])) for d in doc.get("psnr_by_pixel_weights", ())
             ),
+            rounds=tuple(FixRound.from_json(d) for d in doc.get("rounds", ())),
         )
 
 
