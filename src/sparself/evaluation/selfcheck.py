@@ -46,6 +46,11 @@ poses it can be: the check measures with the error of its folds, whose gaps are 
   held-back inputs merges each view with the render of the fit without it, pixel by pixel; the merged views
   replace the network's when they beat both the views and the render on those photos (each scored by a
   fixer that did not train on it). A fold's views are fixed by a fixer trained on the other fold's photos.
+* **Render -> fix -> refit** (``fix_rounds``, one round by default): after the first round each fold is fitted
+  with its views; a new fixer, trained on the held-back photos' network views and those fits' renders there,
+  merges the network's views with those fits' renders at the views' poses (:func:`_refixed`). A round is kept
+  while the folds fitted with its views render their scored photos better by more than the spread over them;
+  the confirmation's views and the written ones then go through the kept rounds too (:func:`_replayed`).
 * **Per pixel** (:func:`informative_confidence`): where a view agrees with the render of the fit without it
   within ``agree_within``, it adds nothing that reconstruction does not already make, so its confidence is
   lowered there (written as the exported mask, so gsplat/nerfstudio users get the same effect). With
