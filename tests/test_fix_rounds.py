@@ -43,8 +43,9 @@ def _folds(raws: list[float], first: float) -> list:
 def _rigged(monkeypatch, used=lambda round_: True):
     """Fits that render the value of the views they were fitted with; a photo's PSNR peaks where that value
     is 0.5; each round's fixer adds its render to the network's view (``used(round)``: whether it beats
-    both). Returns (the scenes fitted, per round the renders its fixer was trained on)."""
-    fitted, trained = [], []
+    both; the one for fold k records (k, the view it merges)). Returns (the fits, the scenes of each call to
+    them, per round the pairs its fixer was trained on as (held-back photo, render), the fixers' merges)."""
+    fitted, trained, merged = [], [], []
     monkeypatch.setattr(
         selfcheck, "_fold_scene", lambda small, f, w, cfg: (f.held[0], float(f.synthesized.images.mean()), w)
     )
@@ -57,21 +58,29 @@ def _rigged(monkeypatch, used=lambda round_: True):
     monkeypatch.setattr(selfcheck, "refit_pairs", lambda pairs, small, held, r: (held[0], r.value))
     monkeypatch.setattr(selfcheck, "fixed", lambda fx, views, ref, conf: fx(views, ref))
 
+    def merging(k):
+        def fx(v, ref):
+            merged.append((k, float(v.mean())))
+            return v + ref
+
+        return fx
+
     def fold_fixers(pairs, cfg):
         trained.append(pairs)
-        fx = (lambda v, ref: v + ref) if used(len(trained) + 1) else None
-        return FixerFit(fx, FixerCheck(("a", "b"), 20.0, 21.0, 22.0, fx is not None)), ([fx] * len(pairs) if fx else [])
+        each = [merging(k) for k in range(len(pairs))] if used(len(trained) + 1) else []
+        fx = (lambda v, ref: v + ref) if each else None
+        return FixerFit(fx, FixerCheck(("a", "b"), 20.0, 21.0, 22.0, fx is not None)), each
 
     def fits(scenes):
         fitted.append(scenes)
         return [_Fit(v) for _, v, _ in scenes]
 
     monkeypatch.setattr(selfcheck, "_fold_fixers", fold_fixers)
-    return fits, fitted, trained
+    return fits, fitted, trained, merged
 
 
 def test_a_round_is_kept_while_it_raises_the_held_back_photos_and_merges_the_networks_views_again(monkeypatch):
-    fits, fitted, trained = _rigged(monkeypatch)
+    fits, fitted, trained, merged = _rigged(monkeypatch)
     first = FixerFit(None, FixerCheck(("a", "b"), 20.0, 21.0, 20.5, False))
     folds, fixers = selfcheck._refixed(None, _folds([0.2, 0.22], 0.05), first, fits, CFG)
     # round 2 merges the raw views with the renders of the fits with round 1's views: 0.2 + 0.25, 0.22 + 0.27,
@@ -88,10 +97,12 @@ def test_a_round_is_kept_while_it_raises_the_held_back_photos_and_merges_the_net
     ]
     assert [len(s) for s in fitted] == [2, 2, 2] and {w for s in fitted for _, _, w in s} == {1.0}
     assert fixers.last is fixers.later[0]
+    # each fold's network view is merged by the fixer scored on that fold (trained on the others' photos)
+    assert merged[:2] == [(0, pytest.approx(0.2)), (1, pytest.approx(0.22))]
 
 
 def test_one_round_fits_nothing_more_and_an_unused_fixer_ends_the_rounds(monkeypatch):
-    fits, fitted, _ = _rigged(monkeypatch, used=lambda round_: round_ > 2)
+    fits, fitted, _, _ = _rigged(monkeypatch, used=lambda round_: round_ > 2)
     first = FixerFit(None, FixerCheck(("a", "b"), 20.0, 21.0, 20.5, False))
     folds = _folds([0.2, 0.22], 0.05)
     same, fixers = selfcheck._refixed(None, folds, first, fits, replace(CFG, fix_rounds=1))
@@ -107,7 +118,7 @@ def test_one_round_fits_nothing_more_and_an_unused_fixer_ends_the_rounds(monkeyp
 
 
 def test_the_confirmations_and_the_written_views_go_through_the_kept_rounds_from_the_networks_views(monkeypatch):
-    fits, fitted, _ = _rigged(monkeypatch)
+    fits, fitted, _, _ = _rigged(monkeypatch)
     monkeypatch.setattr(
         selfcheck, "_replay_scene", lambda small, job, images, w, cfg: (job.held, float(images.mean()), w)
     )
@@ -169,7 +180,7 @@ def test_fix_rounds_must_be_at_least_one():
 
 
 def test_the_written_views_are_the_kept_ones_through_every_kept_round_and_hand_on_the_last_fixer(monkeypatch):
-    fits, fitted, _ = _rigged(monkeypatch)
+    fits, fitted, _, _ = _rigged(monkeypatch)
     monkeypatch.setattr(
         selfcheck, "_replay_scene", lambda small, job, images, w, cfg: (job.held, float(images.mean()), w)
     )
