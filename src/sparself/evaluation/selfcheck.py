@@ -580,8 +580,7 @@ class _Fixers:
 def _fold_scene(small: Scene, f: _Fold, w: float, cfg) -> Scene:
     """The fold's inputs with its views at weight ``w`` (their confidence lowered as in every fit of the
     check), beside its context."""
-    views = _lowered(f.synthesized, f.reference, cfg)
-    return _with_context(weight_scenes(small, f.frames, views, [w], f.held)[0], f.context)
+    return _kept_scene(small, f, _lowered(f.synthesized, f.reference, cfg), np.ones(len(f.frames), bool), w)
 
 
 def _refixed(small: Scene, folds: list[_Fold], fix: FixerFit | None, fits: FitMany, cfg) -> tuple[list[_Fold], _Fixers]:
