@@ -252,6 +252,11 @@ class _Pairs:
     starts: torch.Tensor  # (S,) the first pair of each pixel with any
     first_pix: torch.Tensor  # (S,) those pixels
 
+    @property
+    def fields(self) -> tuple[torch.Tensor, ...]:
+        """(gauss, pix, starts, first_pix): the tensors :func:`_composite` takes (a compiled function's inputs)."""
+        return (self.gauss, self.pix, self.starts, self.first_pix)
+
 
 def _centres(pix: torch.Tensor, width: int, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
     """The pixel centres px, py (P,) (column + 0.5, row + 0.5) of pixel indices ``pix`` (P,), by a float
@@ -360,8 +365,7 @@ def rasterize(
     -> (image (H, W, 3), alpha (H, W))."""
     pairs = _pixel_pairs(p, width, height, compiled=compiled)
     composite = fast(_composite, _probe_composite) if compiled and len(pairs.pix) > 1 else _composite
-    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.first_pix)
-    C, logT = composite(p.means2d, p.conics, p.opacities, p.colors, fields, width, width * height)
+    C, logT = composite(p.means2d, p.conics, p.opacities, p.colors, pairs.fields, width, width * height)
     T = torch.exp(logT)
     return (C + T[:, None] * background).view(height, width, 3), (1 - T).view(height, width)
 
@@ -414,9 +418,8 @@ def _probe_inputs() -> tuple[Projected, _Pairs]:
 
 def _probe_composite(compiled: Callable) -> None:
     p, pairs = _probe_inputs()
-    fields = (pairs.gauss, pairs.pix, pairs.starts, pairs.first_pix)
     C, logT = compiled(
-        p.means2d, p.conics, p.opacities, p.colors, fields, PROBE_SIDES[0], PROBE_SIDES[0] * PROBE_SIDES[1]
+        p.means2d, p.conics, p.opacities, p.colors, pairs.fields, PROBE_SIDES[0], PROBE_SIDES[0] * PROBE_SIDES[1]
     )
     (C.sum() + logT.sum()).backward()
 
