@@ -82,7 +82,7 @@ def _rigged(monkeypatch, used=lambda round_: True):
 def test_a_round_is_kept_while_it_raises_the_held_back_photos_and_merges_the_networks_views_again(monkeypatch):
     fits, fitted, trained, merged = _rigged(monkeypatch)
     first = FixerFit(None, FixerCheck(("a", "b"), 20.0, 21.0, 20.5, False))
-    folds, fixers = selfcheck._refixed(None, _folds([0.2, 0.22], 0.05), first, fits, CFG)
+    folds, fixers, done = selfcheck._refixed(None, _folds([0.2, 0.22], 0.05), first, fits, CFG)
     # round 2 merges the raw views with the renders of the fits with round 1's views: 0.2 + 0.25, 0.22 + 0.27,
     # nearer the peak (kept); round 3 would give 0.65 and 0.71, past it (not kept): the rounds stop there
     assert [f.synthesized.images.mean() for f in folds] == pytest.approx([0.45, 0.49])
@@ -99,18 +99,21 @@ def test_a_round_is_kept_while_it_raises_the_held_back_photos_and_merges_the_net
     assert fixers.last is fixers.later[0]
     # each fold's network view is merged by the fixer scored on that fold (trained on the others' photos)
     assert merged[:2] == [(0, pytest.approx(0.2)), (1, pytest.approx(0.22))]
+    # handed on for the scoring: the kept round's fold scenes and their fits, not the refit that was not kept
+    assert [sc for sc, _ in done] == fitted[1] and [r.value for _, r in done] == pytest.approx([0.45, 0.49])
 
 
 def test_one_round_fits_nothing_more_and_an_unused_fixer_ends_the_rounds(monkeypatch):
     fits, fitted, _, _ = _rigged(monkeypatch, used=lambda round_: round_ > 2)
     first = FixerFit(None, FixerCheck(("a", "b"), 20.0, 21.0, 20.5, False))
     folds = _folds([0.2, 0.22], 0.05)
-    same, fixers = selfcheck._refixed(None, folds, first, fits, replace(CFG, fix_rounds=1))
-    assert same is folds and fixers.rounds == () and fitted == []
-    same, fixers = selfcheck._refixed(None, folds, None, fits, CFG)  # no fixer at all (off, or no pairs)
+    same, fixers, done = selfcheck._refixed(None, folds, first, fits, replace(CFG, fix_rounds=1))
+    assert same is folds and fixers.rounds == () and fitted == [] and done == []
+    same, fixers, _ = selfcheck._refixed(None, folds, None, fits, CFG)  # no fixer at all (off, or no pairs)
     assert same is folds and fitted == []
-    same, fixers = selfcheck._refixed(None, folds, first, fits, CFG)
+    same, fixers, done = selfcheck._refixed(None, folds, first, fits, CFG)
     assert same is folds and fixers.later == () and len(fitted) == 1
+    assert [sc for sc, _ in done] == fitted[0]  # the folds with their first round's views, fitted once
     assert fixers.rounds == (
         FixRound(FixerCheck(("a", "b"), 20.0, 21.0, 22.0, False), pytest.approx(27.6), None, False),
     )
@@ -155,6 +158,35 @@ def test_a_later_rounds_refit_holds_its_photos_back_and_fits_the_views_at_the_ro
     assert {f.weight for f in sc.frames if f.synthetic} == {0.7}
     whole = selfcheck._replay_scene(small, replace(job, held=[], base=base), images, 0.7, CFG)
     assert len([f for f in whole.frames if not f.synthetic]) == len(small)
+
+
+def test_the_scoring_takes_the_rounds_fit_of_an_equal_scene_and_fits_every_other():
+    small = selfcheck.at_check_size(plane_scene(xs=tuple(0.1 * i for i in range(6))), CFG)
+    planned = plan_poses(small, PlanConfig(n_mid=2, n_extra=0))
+    images = np.full((2, small.frames[0].image.shape[0], small.frames[0].image.shape[1], 3), 0.5, np.float32)
+    conf = np.ones(images.shape[:3], np.float32)
+    views = ValidationViews(images, conf, [])
+    [done] = selfcheck.weight_scenes(small, planned, views, [1.0], [2])
+    # the same content built again from copies: equal, though no array is the same object
+    views_again = ValidationViews(images.copy(), conf.copy(), [])
+    [again] = selfcheck.weight_scenes(small, planned, views_again, [1.0], [2])
+    brighter = images.copy()
+    brighter[1, 0, 0, 0] += 0.25
+    [one_pixel] = selfcheck.weight_scenes(small, planned, ValidationViews(brighter, conf, []), [1.0], [2])
+    [heavier] = selfcheck.weight_scenes(small, planned, views, [0.5], [2])
+    [other_held] = selfcheck.weight_scenes(small, planned, views, [1.0], [3])
+    asked = []
+
+    def fits(scenes):
+        asked.append(scenes)
+        return [_Fit(float(k)) for k in range(len(scenes))]
+
+    out = selfcheck.reusing(fits, [(done, _Fit(-1.0))])([one_pixel, again, heavier, other_held])
+    assert [r.value for r in out] == [0.0, -1.0, 1.0, 2.0]
+    assert asked == [[one_pixel, heavier, other_held]]
+    assert selfcheck.reusing(fits, [])([again])[0].value == 0.0  # nothing handed on: every scene is fitted
+    assert not selfcheck.same_content(np.zeros(2, np.float32), np.zeros(2, np.float64))
+    assert selfcheck.same_content({"a": (1, np.ones(2))}, {"a": (1, np.ones(2))})
 
 
 def test_the_rounds_record_round_trips_through_sparself_json_and_is_said_in_the_reason():

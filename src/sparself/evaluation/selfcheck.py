@@ -65,7 +65,7 @@ with each other, so they need not be the user's final fit, only alike.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Callable, Literal
 
 import numpy as np
@@ -317,6 +317,32 @@ def remembering(fits: FitMany) -> FitMany:
         return out
 
     return run
+
+
+def reusing(fits: FitMany, done: list[tuple[Scene, Renderer]]) -> FitMany:
+    """``fits`` that hands back ``done``'s fit of a scene equal to one asked for (the same frames, images, weights,
+    confidence and points: :func:`same_content`; the fits are seeded) and fits only the rest."""
+
+    def run(scenes: list[Scene]) -> list[Renderer]:
+        found = [next((r for d, r in done if same_content(sc, d)), None) for sc in scenes]
+        new = iter(fits([sc for sc, r in zip(scenes, found) if r is None]))
+        return [next(new) if r is None else r for r in found]
+
+    return run
+
+
+def same_content(a, b) -> bool:
+    """Whether two values are equal field by field, arrays element by element (dataclasses such as a Scene and its
+    frames, dicts, lists, tuples, arrays, and anything else by ``==``)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
+    if is_dataclass(a) and not isinstance(a, type):
+        return type(a) is type(b) and all(same_content(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same_content(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return type(a) is type(b) and len(a) == len(b) and all(same_content(x, y) for x, y in zip(a, b))
+    return bool(a == b)
 
 
 def check_workers(cfg: SelfCheckConfig) -> int:
@@ -583,19 +609,23 @@ def _fold_scene(small: Scene, f: _Fold, w: float, cfg) -> Scene:
     return _kept_scene(small, f, _lowered(f.synthesized, f.reference, cfg), np.ones(len(f.frames), bool), w)
 
 
-def _refixed(small: Scene, folds: list[_Fold], fix: FixerFit | None, fits: FitMany, cfg) -> tuple[list[_Fold], _Fixers]:
+def _refixed(
+    small: Scene, folds: list[_Fold], fix: FixerFit | None, fits: FitMany, cfg
+) -> tuple[list[_Fold], _Fixers, list[tuple[Scene, Renderer]]]:
     """Later rounds of render -> fix -> refit (``cfg.fix_rounds``): each fold is fitted with its views; a fixer
     is trained on the held-back photos' network views and those fits' renders there (validated as the first
     round's, :func:`_fold_fixers`) and merges each fold's network views with those fits' renders at their
     poses; the folds are fitted again with the merges, and the round is kept when that raises their scored
     photos by more than its spread (:func:`~sparself.core.metrics.clear_gain`); the rounds stop at the first
-    that is not."""
+    that is not. -> (the folds after the last kept round, the fixers, [(scene, fit)] of those folds with their
+    views: the scoring after the rounds fits the same scenes and takes these instead, :func:`reusing`)."""
     fixers = _Fixers(None if fix is None else fix.fixer, max(weights_of(cfg)))
     pairs = [f.pairs for f in folds if f.pairs is not None]
     raws = [f.raw for f in folds if f.raw is not None]
     if cfg.fix_rounds < 2 or fix is None or len(pairs) < len(folds) or len(raws) < len(folds):
-        return folds, fixers
-    fitted = fits([_fold_scene(small, f, fixers.weight, cfg) for f in folds])
+        return folds, fixers, []
+    scenes = [_fold_scene(small, f, fixers.weight, cfg) for f in folds]
+    fitted = fits(scenes)
     for k in range(2, cfg.fix_rounds + 1):
         before = np.concatenate([held_back_psnr(small, r, f.scored) for f, r in zip(folds, fitted)])
         fit, each = _fold_fixers([refit_pairs(p, small, f.held, r) for p, f, r in zip(pairs, folds, fitted)], cfg)
@@ -606,7 +636,8 @@ def _refixed(small: Scene, folds: list[_Fold], fix: FixerFit | None, fits: FitMa
             replace(f, synthesized=_fixed_views(fx, raw, renders(r, small, f.frames)))
             for f, raw, fx, r in zip(folds, raws, each, fitted)
         ]
-        refitted = fits([_fold_scene(small, f, fixers.weight, cfg) for f in again])
+        rescenes = [_fold_scene(small, f, fixers.weight, cfg) for f in again]
+        refitted = fits(rescenes)
         after = np.concatenate([held_back_psnr(small, r, f.scored) for f, r in zip(again, refitted)])
         kept = clear_gain(after - before, 0.0)
         log.info(
@@ -620,8 +651,9 @@ def _refixed(small: Scene, folds: list[_Fold], fix: FixerFit | None, fits: FitMa
         fixers = replace(fixers, rounds=fixers.rounds + (record,))
         if not kept:
             break
-        folds, fitted, fixers = again, refitted, replace(fixers, later=fixers.later + (fit.fixer,))
-    return folds, fixers
+        folds, scenes, fitted = again, rescenes, refitted
+        fixers = replace(fixers, later=fixers.later + (fit.fixer,))
+    return folds, fixers, list(zip(scenes, fitted))
 
 
 @dataclass
@@ -838,8 +870,8 @@ def self_check(
         for k, (h, v, b, c) in enumerate(zip(every, views + [v for _, v in wide], bases, ctx))
     ]
     folds, fix = _fixed_folds(made[: len(held)], cfg)
-    folds, fixers = _refixed(small, folds, fix, fits, cfg)
-    ranked, tried = _pixel_weighted(small, folds, fits, others, cfg)
+    folds, fixers, refits = _refixed(small, folds, fix, fits, cfg)
+    ranked, tried = _pixel_weighted(small, folds, reusing(fits, refits), others, cfg)
     tested: list[tuple[_Outcome, SelfCheckConfig]] = []
     for own, scored, c in ranked:  # choosing pixel weights, the other way when the first keeps no view
         tested.append((_outcome(inputs, small, planned, own, made[len(held) :], scored, synth, fits, fixers, c), c))
