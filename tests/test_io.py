@@ -44,8 +44,9 @@ def _look_at(center: np.ndarray, target=np.zeros(3), up=np.array([0.0, -1.0, 0.0
     return Pose(rotmat_to_quat(R), -R @ center)
 
 
-def _synthetic_scene(folder: Path, n: int = 5, seed: int = 0) -> Scene:
-    """A small orbit of n cameras around the origin with tiny random images and a few sparse points."""
+def _synthetic_scene(folder: Path, n: int = 5, seed: int = 0, focal_per_photo: bool = False) -> Scene:
+    """A small orbit of n cameras around the origin with tiny random images and a few sparse points (each photo
+    with its own focal length, as SfM gives a phone's zooming photos, with ``focal_per_photo``)."""
     rng = np.random.default_rng(seed)
     img_dir = folder / "images"
     img_dir.mkdir(parents=True)
@@ -55,10 +56,14 @@ def _synthetic_scene(folder: Path, n: int = 5, seed: int = 0) -> Scene:
         c = np.array([3 * np.cos(a), 0.3 * rng.standard_normal(), 3 * np.sin(a)])
         p = img_dir / f"{i:03d}.png"
         save_image(p, rng.random((H, W, 3)))
-        frames.append(Frame(name=p.name, pose=_look_at(c), camera_id=1, index=float(i), path=p))
-    cam = Camera("SIMPLE_PINHOLE", W, H, (20.5, W / 2, H / 2))  # LLFF can hold only this form
-    pts = rng.uniform(-0.5, 0.5, (50, 3))
-    return Scene(cameras={1: cam}, frames=frames, points=pts, bounds=None)
+        frames.append(
+            Frame(name=p.name, pose=_look_at(c), camera_id=i + 1 if focal_per_photo else 1, index=float(i), path=p)
+        )
+    cams = {
+        k + 1: Camera("SIMPLE_PINHOLE", W, H, (20.5 + 3 * k, W / 2, H / 2)) for k in range(n if focal_per_photo else 1)
+    }
+    pts = rng.uniform(-0.5, 0.5, (50, 3))  # LLFF can hold only the SIMPLE_PINHOLE form above
+    return Scene(cameras=cams, frames=frames, points=pts, bounds=None)
 
 
 def _intr(cam: Camera) -> np.ndarray:
@@ -91,9 +96,10 @@ def _via(fmt: str, scene: Scene, folder: Path) -> Scene:
     return _WRITERS[fmt](scene, folder)
 
 
+@pytest.mark.parametrize("per_photo", [False, True], ids=["one camera", "a focal length per photo"])
 @pytest.mark.parametrize("a,b", list(itertools.product(_WRITERS, repeat=2)))
-def test_round_trip_between_formats(tmp_path, a, b):
-    scene = _synthetic_scene(tmp_path / "src")
+def test_round_trip_between_formats(tmp_path, a, b, per_photo):
+    scene = _synthetic_scene(tmp_path / "src", focal_per_photo=per_photo)
     first = _via(a, scene, tmp_path / "a")
     second = _via(b, first, tmp_path / "b")
     _assert_same(scene, first)
