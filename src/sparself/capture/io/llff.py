@@ -6,7 +6,9 @@ camera-to-world rotation with columns (+y, +x, -z) of the COLMAP/OpenCV camera, 
 in world coordinates, column 4 ``[H, W, focal]``; ``row[15:17]`` = near, far depth bounds of that view.
 
 LLFF keeps one focal length and assumes the principal point at the image centre and fx == fy: other
-intrinsics are approximated on write (with a warning) and come back as a centred PINHOLE camera.
+intrinsics are approximated on write (with a warning) and come back as a centred PINHOLE camera. Each row keeps
+its own view's focal length and size, but NeRF's loader (``load_llff_data``) reads the first row's for every
+image: a write whose views differ there says so (:func:`_one_camera_note`).
 """
 
 from __future__ import annotations
@@ -216,7 +218,29 @@ def llff_array(scene: Scene) -> tuple[np.ndarray, list[int]]:
             len(approx),
             approx[0],
         )
+    _one_camera_note(scene, order)
     return np.asarray(rows, dtype=np.float64), order
+
+
+def _one_camera_note(scene: Scene, order: list[int]) -> None:
+    """A warning, once per write, when the views' focal lengths differ by more than ``APPROX_WARN`` or their
+    image sizes differ: NeRF's LLFF loader would give every image the first row's."""
+    cams = [scene.camera(i) for i in order]
+    focal = np.array([c.fx for c in cams])
+    sizes = {(c.width, c.height) for c in cams}
+    differ = []
+    if len(cams) > 1 and focal.max() > focal.min() * (1 + APPROX_WARN):
+        differ.append(f"focal lengths from {focal.min():.1f} to {focal.max():.1f} px")
+    if len(sizes) > 1:
+        differ.append(f"{len(sizes)} image sizes")
+    if differ:
+        log.warning(
+            "%s keeps each view's camera, but NeRF's LLFF loader takes the first row's focal length and size for "
+            "every image; these views have %s: with such a loader, use the scene's COLMAP model or "
+            "transforms.json, which keep each view's camera",
+            FILENAME,
+            " and ".join(differ),
+        )
 
 
 def write_llff(scene: Scene, out_dir: Path) -> Path:
