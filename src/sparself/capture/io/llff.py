@@ -5,10 +5,10 @@ order. ``row[:15].reshape(3, 5) = [down | right | back | centre | hwf]``: the fi
 camera-to-world rotation with columns (+y, +x, -z) of the COLMAP/OpenCV camera, column 3 the camera centre
 in world coordinates, column 4 ``[H, W, focal]``; ``row[15:17]`` = near, far depth bounds of that view.
 
-LLFF keeps one focal length and assumes the principal point at the image centre and fx == fy: other
-intrinsics are approximated on write (with a warning) and come back as a centred PINHOLE camera. Each row keeps
-its own view's focal length and size, but NeRF's loader (``load_llff_data``) reads the first row's for every
-image: a write whose views differ there says so (:func:`_one_camera_note`).
+Each row holds one focal length (fx == fy) and assumes the principal point at the image centre: other
+intrinsics are approximated on write (with a warning) and come back as a centred PINHOLE camera. NeRF's loader
+(``load_llff_data``) moreover reads the first row's focal length and size for every image: a write whose views
+differ there says so (:func:`_one_camera_note`).
 """
 
 from __future__ import annotations
