@@ -504,7 +504,7 @@ def test_no_downscaled_reaches_densify_and_synthesize(monkeypatch):
         seen.setdefault(key, value)
         return Scene({}, [])
 
-    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg: keep("densify", cfg.downscaled))
+    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg, resume=False: keep("densify", cfg.downscaled))
     monkeypatch.setattr(synthesize, "synthesize_plan", lambda *a, downscaled, **k: keep("synth", downscaled))
     for flag, want in (([], True), (["--no-downscaled"], False)):
         seen.clear()

@@ -178,7 +178,7 @@ def test_no_triangulate_reaches_densify_and_synthesize(monkeypatch):
         seen[key] = value
         return Scene({}, [])
 
-    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg: keep("densify", cfg.triangulate))
+    monkeypatch.setattr(pipeline, "densify", lambda photos, out, cfg, resume=False: keep("densify", cfg.triangulate))
     monkeypatch.setattr(synthesize, "synthesize_plan", lambda *a, triangulate, **k: keep("synth", triangulate))
     for flag, want in (([], True), (["--no-triangulate"], False)):
         assert cli.main(["densify", "p", "--out", "o", "-q", *flag]) == 0

@@ -12,6 +12,7 @@ import pytest
 
 from planescene import plane_scene
 from sparself.capture.io.dense import FixerCheck, FixRound, SelfCheck, ViewCheck
+from sparself.core.content import same_content
 from sparself.evaluation import selfcheck
 from sparself.evaluation.fixing import FixerFit
 from sparself.evaluation.selfcheck import SelfCheckConfig
@@ -185,8 +186,8 @@ def test_the_scoring_takes_the_rounds_fit_of_an_equal_scene_and_fits_every_other
     assert [r.value for r in out] == [0.0, -1.0, 1.0, 2.0]
     assert asked == [[one_pixel, heavier, other_held]]
     assert selfcheck.reusing(fits, [])([again])[0].value == 0.0  # nothing handed on: every scene is fitted
-    assert not selfcheck.same_content(np.zeros(2, np.float32), np.zeros(2, np.float64))
-    assert selfcheck.same_content({"a": (1, np.ones(2))}, {"a": (1, np.ones(2))})
+    assert not same_content(np.zeros(2, np.float32), np.zeros(2, np.float64))
+    assert same_content({"a": (1, np.ones(2))}, {"a": (1, np.ones(2))})
 
 
 def test_the_rounds_record_round_trips_through_sparself_json_and_is_said_in_the_reason():

@@ -74,7 +74,9 @@ def test_a_disk_that_fills_up_during_densify_is_one_line(scene, tmp_path, capsys
     argv = ["densify", scene, "--out", tmp_path / "out", "--epochs", "1", "--n-mid", "1", "--n-extra", "0", *DENSIFY]
     code, _, err = run(capsys, *argv)
     one_error(code, err, "densify", "no space left on ", "needed about")
-    assert listing(tmp_path) == []  # the temporary output is removed
+    # the temporary output is removed; the finished steps are kept for --resume, once space is freed
+    assert listing(tmp_path) == [".out.sparself-work"]
+    assert f"the finished steps are kept in {tmp_path / '.out.sparself-work'}; the same command with --resume" in err
 
 
 def test_a_full_disk_under_torch_save_becomes_the_disk_error(tmp_path, monkeypatch):

@@ -180,10 +180,14 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
     res = tmp_path / "res"
     res.mkdir()
     argv = cli("densify", scene, "--out", res / "out", "--epochs", "200", "--n-mid", "2", "--n-extra", "1", *DENSIFY)
-    proc = subprocess.Popen(argv, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [*argv, "--checkpoint-every", "1000"], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     t0 = time.monotonic()
-    # wait until training writes into the temporary output (a hidden .out.tmp-* folder with a run log)
-    while proc.poll() is None and time.monotonic() - t0 < 300 and not list(res.glob(".out.tmp-*/run/train_log.csv")):
+    # wait until training writes into its work folder (a hidden .out.sparself-work beside the output), before its
+    # first checkpoint: nothing finished, so nothing is kept
+    work_log = ".out.sparself-work/run/train_log.csv"
+    while proc.poll() is None and time.monotonic() - t0 < 300 and not list(res.glob(work_log)):
         time.sleep(0.01)
     assert proc.poll() is None, proc.communicate()[1]
     proc.send_signal(signal.SIGINT)

@@ -14,6 +14,7 @@ from planescene import plane_scene, render_plane, small_plane_scene
 from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
 from sparself.capture.io.dense import Confirmation, GapTrend, SelfCheck, ViewCheck, read_selfcheck
+from sparself.core.content import same_content
 from sparself.core.geometry import Pose
 from sparself.evaluation.folds import (
     beyond,
@@ -41,11 +42,11 @@ def _line(n: int = 12):
     return plane_scene(xs=tuple(0.1 * i for i in range(n)))  # 96 x 64 views of a textured plane
 
 
-def _densify(tmp_path, monkeypatch, views, check=MPI):
+def _densify(tmp_path, monkeypatch, views, check=MPI, resume=False):
     """densify with the network replaced by ``views(scene, targets) -> images`` (no training)."""
 
-    def fake_train(scene, path, cfg):
-        path.mkdir(parents=True)
+    def fake_train(scene, path, cfg, **_):
+        path.mkdir(parents=True, exist_ok=True)
         return None
 
     def fake_synth(run, scene, targets):
@@ -55,7 +56,7 @@ def _densify(tmp_path, monkeypatch, views, check=MPI):
     monkeypatch.setattr(pipeline, "train", fake_train)
     monkeypatch.setattr(pipeline, "synthesize_with_confidence", fake_synth)
     cfg = pipeline.DensifyConfig(plan=PLAN, check=check, triangulate=False, keep_run=False, downscaled=False)
-    return pipeline.densify(_line(), tmp_path / "out", cfg)
+    return pipeline.densify(_line(), tmp_path / "out", cfg, resume=resume)
 
 
 def _exact(scene, targets):
@@ -960,10 +961,46 @@ def test_densify_fits_a_scene_of_real_photos_once_per_check(monkeypatch):
 
     fitted = []
     monkeypatch.setattr(
-        selfcheck, "check_fits", lambda cfg, pool=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes]
+        selfcheck,
+        "check_fits",
+        lambda cfg, pool=None, store=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes],
     )
     monkeypatch.setattr(selfcheck, "self_check", lambda inputs, *a: [a[5]([inputs.subset(range(3))])[0] for _ in "ab"])
     scene = _line(6)
     planned = plan_poses(scene, PLAN)
     _, both, _ = selfcheck.checked_views(scene, planned, PLAN, _exact, replace(MPI, plan_mode="paper"))
     assert both[0] is both[1] and len(fitted) == 1
+
+
+def test_a_stopped_densify_resumes_from_its_fits_to_the_same_scene(tmp_path, monkeypatch):
+    """A densify stopped in its self-check keeps the fits it finished beside its output, and ``resume`` fits only
+    the others and writes what a run never stopped writes."""
+    from sparself.core.outputs import work_path
+    from sparself.recon.pool import Fitter
+
+    many, fitted = Fitter.many, []
+
+    def counted(self, scenes, pool=None, seeds=None):
+        if stop_at and len(fitted) >= stop_at:
+            raise KeyboardInterrupt
+        fitted.extend(scenes)
+        return many(self, scenes, pool, seeds)
+
+    monkeypatch.setattr(Fitter, "many", counted)
+    stop_at = 0
+    whole = _densify(tmp_path / "whole", monkeypatch, _exact)
+    total, fitted[:] = len(fitted), []
+    assert total > 4 and not work_path(tmp_path / "whole" / "out").exists()  # removed once the scene is written
+    stop_at = 3
+    with pytest.raises(KeyboardInterrupt):
+        _densify(tmp_path / "stopped", monkeypatch, _exact)
+    out = tmp_path / "stopped" / "out"
+    kept = sorted((work_path(out) / "fits").glob("*.pkl"))
+    assert not out.exists() and len(kept) == len(fitted) >= 3  # nothing written, every finished fit kept
+    before, stop_at, fitted[:] = len(kept), 0, []
+    resumed = _densify(tmp_path / "stopped", monkeypatch, _exact, resume=True)
+    assert len(fitted) == total - before and not work_path(out).exists()
+    assert read_selfcheck(out / "scene") == read_selfcheck(tmp_path / "whole" / "out" / "scene")
+    assert [f.name for f in resumed.frames] == [f.name for f in whole.frames]
+    for a, b in zip(resumed.frames, whole.frames):
+        assert same_content(a.image, b.image) and same_content(a.confidence, b.confidence)

@@ -50,29 +50,62 @@ def _wait_for(proc, cond, what: str) -> None:
     assert proc.poll() is None, f"ended before {what}: {proc.communicate()[1]}"
 
 
+def _densify_until(res: Path, scene: Path, ready: str, *more: str) -> subprocess.Popen:
+    """``sparself densify scene --out res/out`` (500 epochs), once ``res/ready`` (a glob) exists."""
+    argv = ["densify", scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2", "--n-extra", "1", *DENSIFY]
+    proc = subprocess.Popen(cli(*argv, *more), env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for(proc, lambda: list(res.glob(ready)), ready)
+    return proc
+
+
+def _interrupted(proc: subprocess.Popen, sig) -> str:
+    """Send ``sig``; -> the one line saying what the interrupted command kept (exit 128 + sig, no traceback)."""
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig and "Traceback" not in err, err
+    lines = [ln for ln in err.splitlines() if "interrupted" in ln]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
-def test_signal_during_densify_leaves_nothing(scene, tmp_path, sig):
+def test_signal_during_densify_before_anything_is_finished_leaves_nothing(scene, tmp_path, sig):
     need("densify")
     res = tmp_path / "res"
     res.mkdir()
-    proc = subprocess.Popen(
-        cli("densify", scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2", "--n-extra", "1", *DENSIFY),
-        env=ENV,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    _wait_for(proc, lambda: list(res.glob(".out.tmp-*/run/train_log.csv")), "training started")
-    proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
+    proc = _densify_until(res, scene, ".out.sparself-work/run/train_log.csv", "--checkpoint-every", "1000")
+    line = _interrupted(proc, sig)
     name = signal.Signals(sig).name
-    assert proc.returncode == 128 + sig, err
-    lines = [ln for ln in err.splitlines() if "interrupted" in ln]
-    assert lines == [
-        f"sparself densify: interrupted by {name}; nothing was written to {res / 'out'}; run the command again"
-    ], err
-    assert "Traceback" not in err
-    assert listing(res) == []  # no output, no hidden temporary folder
+    assert (
+        line == f"sparself densify: interrupted by {name}; nothing was written to {res / 'out'}; run the command again"
+    )
+    assert listing(res) == []  # no output, no hidden temporary or work folder
+
+
+def test_sigterm_during_densify_keeps_the_checkpoint_and_the_printed_command_continues(scene, tmp_path):
+    need("densify")
+    import torch
+
+    res = tmp_path / "res"
+    res.mkdir()
+    work = res / ".out.sparself-work"
+    proc = _densify_until(res, scene, ".out.sparself-work/run/checkpoint.pt")
+    line = _interrupted(proc, signal.SIGTERM)
+    hint = (
+        f"sparself densify: interrupted by SIGTERM; nothing was written to {res / 'out'}; the finished steps are "
+        f"kept in {work}; continue with: "
+    )
+    assert line.startswith(hint), line
+    assert listing(res) == [work.name]  # no output and no temporary folder: only the work folder
+    epoch = torch.load(work / "run" / "checkpoint.pt", weights_only=False)["epoch"]
+    resume = shlex.split(line[len(hint) :])
+    assert resume[-1] == "--resume" and resume.index("500")
+    resume[resume.index("500")] = str(epoch + 1)  # the printed command, to a nearer end to keep the test short
+    done = subprocess.run(cli(*resume[1:], "-q"), env=ENV, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert listing(res) == ["out"]  # the work folder goes once the scene is written
+    assert torch.load(res / "out" / "run" / "checkpoint.pt", weights_only=False)["epoch"] == epoch + 1
+    assert (res / "out" / "scene" / "sparself.json").is_file()
 
 
 def test_sigterm_during_training_keeps_the_checkpoint_and_says_how_to_resume(scene, tmp_path):
@@ -119,7 +152,9 @@ def test_sigterm_on_a_colmap_scene_is_ctrl_c_in_densify(colmap_scene, tmp_path):
     res.mkdir()
     argv = ["densify", colmap_scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2", "--n-extra", "1"]
     err = _sigterm_under_timeout(
-        argv + DENSIFY, lambda: list(res.glob(".out.tmp-*/run/train_log.csv")), "training started"
+        [*argv, *DENSIFY, "--checkpoint-every", "1000"],
+        lambda: list(res.glob(".out.sparself-work/run/train_log.csv")),
+        "training started",
     )
     assert err.splitlines()[-1] == (
         f"sparself densify: interrupted by SIGTERM; nothing was written to {res / 'out'}; run the command again"

@@ -56,13 +56,10 @@ def run_train(args) -> int:
 
 def resume_hint(args) -> str:
     """After Ctrl-C in `train`: which checkpoint is kept and the exact command that continues from it."""
-    import shlex
-
     from sparself.synthesis.run import CHECKPOINT, CONFIG
     from sparself.synthesis.train import checkpoint_epoch
 
-    argv = [a for a in args.argv if a != "--overwrite"]
-    again = "sparself " + shlex.join(argv + ([] if "--resume" in argv else ["--resume"]))
+    again = resume_command(args)
     epoch = checkpoint_epoch(args.out)
     if epoch is not None:
         return f"the checkpoint at epoch {epoch} is kept in {args.out / CHECKPOINT}; continue with: {again}"
@@ -124,6 +121,13 @@ def add_densify(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder")
     densify_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue a run that was stopped (Ctrl-C, kill, an error) from the steps it finished: its poses, "
+        "its network's last checkpoint and its self-check's fits, kept in .OUT.sparself-work beside --out "
+        "(the same result as a run never stopped; the options must be the same)",
+    )
     export_options(p)
     add_common_options(p)
     p.set_defaults(func=run_densify)
@@ -183,14 +187,36 @@ def run_densify(args) -> int:
 
     t0 = time.perf_counter()
     try:
-        dense = densify(args.photos, args.out, densify_config(args, overwrite=args.overwrite))
-    except KeyboardInterrupt:  # its output appears whole or not at all
-        raise KeyboardInterrupt(f"nothing was written to {args.out}; run the command again") from None
+        dense = densify(args.photos, args.out, densify_config(args, overwrite=args.overwrite), resume=args.resume)
+    except KeyboardInterrupt:  # its output appears whole or not at all; its finished steps may be kept
+        raise KeyboardInterrupt(densify_hint(args)) from None
     print(
         f"wrote {views_summary(dense)} -> {args.out / 'scene'} (run: {args.out / 'run'}, plan: "
         f"{args.out / 'plan.json'}) in {took(t0)}"
     )
     return 0
+
+
+def densify_hint(args) -> str:
+    """After Ctrl-C in `densify`: nothing written, and either where the finished steps are kept with the exact
+    command that continues from them, or that the command must be run again."""
+    from sparself.core.outputs import work_path
+
+    work = work_path(args.out)
+    if not work.is_dir():
+        return f"nothing was written to {args.out}; run the command again"
+    return (
+        f"nothing was written to {args.out}; the finished steps are kept in {work}; continue with: "
+        f"{resume_command(args)}"
+    )
+
+
+def resume_command(args) -> str:
+    """The command as typed, with ``--resume`` and without ``--overwrite`` (which would start again)."""
+    import shlex
+
+    argv = [a for a in args.argv if a != "--overwrite"]
+    return "sparself " + shlex.join(argv + ([] if "--resume" in argv else ["--resume"]))
 
 
 def batch_options(p: argparse.ArgumentParser) -> None:

@@ -14,18 +14,23 @@ from sparself.capture.plot import plot_cameras
 from sparself.capture.scene import Scene, preloaded
 from sparself.capture.sfm import SfmConfig, recover_poses
 from sparself.capture.triangulate import ensure_points
+from sparself.core.content import digest, keep, kept
 from sparself.core.errors import InputError
+from sparself.core.locks import output_lock
 from sparself.core.options import option
-from sparself.core.outputs import Input, atomic_dir, check_output_dir, scene_inputs
+from sparself.core.outputs import Input, atomic_dir, check_output_dir, real, scene_inputs, work_dir
 from sparself.core.space import MB, check_free_space, files_size
 from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
+from sparself.recon.pool import FitStore
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
-from sparself.synthesis.run import Run
+from sparself.synthesis.run import CHECKPOINT, CONFIG, Run
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
+
+POSES = "poses.pkl"  # in the work folder: what SfM recovered
 
 
 @dataclass
@@ -53,34 +58,64 @@ class DensifyConfig:
     )
 
 
-def read_input(path: Path, cfg: DensifyConfig, out: Path | None = None) -> Scene:
+def read_input(path: Path, cfg: DensifyConfig, out: Path | None = None, work: Path | None = None) -> Scene:
     """A scene from anything read_scene accepts, else a folder of photos posed with SfM (its scratch
-    folder beside ``out``)."""
+    folder beside ``out``; the poses kept in ``work``, when given, and read back from there while the photos and
+    the SfM options are the same)."""
     try:
         sio.detect_format(path)
     except InputError:
         pass  # no pose file here: a folder of photos (list_images/recover_poses say what is wrong with it)
     else:
         return sio.read_scene(path)  # a broken pose file is reported, not silently replaced by SfM
+    key = digest((real(path), sorted(path.iterdir()) if path.is_dir() else [], cfg.sfm))
+    saved = kept(work / POSES) if work is not None else None
+    if isinstance(saved, _Posed) and saved.key == key:
+        log.info("%s: the poses a stopped run recovered (%d photos)", path, len(saved.scene))
+        return saved.scene
     log.info("%s: no poses found; recovering them with structure from motion", path)
     scene, _ = recover_poses(path, cfg.sfm, beside=out)  # it logs what was registered and what not
+    if work is not None:
+        keep(work / POSES, _Posed(key, scene))
     return scene
 
 
-def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) -> Scene:
+@dataclass(frozen=True)
+class _Posed:
+    """The poses SfM recovered, kept for a resumed run with the digest of the photos and options they came from."""
+
+    key: str
+    scene: Scene
+
+
+def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None, resume: bool = False) -> Scene:
     """Photos (or a posed scene) -> poses -> plan -> train -> synthesize -> written dense scene.
 
     photos_or_scene: a Scene, or a path read by ``sparself.capture.io.read_scene`` or a folder of photos (SfM).
     out: folder written atomically: the dense scene in ``out/scene/`` (``sparself.capture.io.write_scene`` layout:
     images/, sparse/0/, poses_bounds.npy, transforms.json), the plan in ``out/plan.json``, a camera plot
     ``out/cameras.png`` and, if ``keep_run``, the trained run in ``out/run/``. Returns the densified scene.
+    While it runs, the finished steps (SfM's poses, the network's checkpoints, the self-check's fits) are kept in
+    a work folder beside ``out`` (:func:`~sparself.core.outputs.work_path`), left there when the run is stopped;
+    ``resume`` continues from them, to the same result as a run never stopped.
     """
     cfg = cfg or DensifyConfig()
     cfg.check.validate()
     out = Path(out)
     given = isinstance(photos_or_scene, Scene)
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
-    scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg, out)
+    with output_lock(out), work_dir(out, resume, _worth_keeping) as work:
+        scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg, out, work)
+        return _densify(scene, out, cfg, work)
+
+
+def _worth_keeping(work: Path) -> bool:
+    """Whether a stopped run's work folder holds a finished step: poses, a checkpoint or a fit."""
+    return (work / POSES).is_file() or (work / "run" / CHECKPOINT).is_file() or any((work / "fits").glob("*.pkl"))
+
+
+def _densify(scene: Scene, out: Path, cfg: DensifyConfig, work: Path | None) -> Scene:
+    """:func:`densify` from the posed scene on, the network trained in ``work`` and the fits kept there."""
     check_output_dir(out, cfg.overwrite, scene_inputs(scene))  # before any training
     photos = scene  # at their own size: triangulation matches them at up to 800 px
     if cfg.out_size:
@@ -96,10 +131,12 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
     check_free_space(out, densify_bytes(photos, len(targets), cfg.downscaled))
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
-        run = train(scene, tmp / "run", tcfg)
+        trained = tmp / "run" if work is None else work / "run"
+        run = train(scene, trained, tcfg, resume=(trained / CONFIG).is_file(), overwrite=True)
         # points for the written scene (training and synthesis are the same with or without them) and the fits
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout)
+        store = None if work is None else FitStore(work / "fits")
+        planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout, store)
         dense = densify_scene(written, views.frames, views.images, views.confidence)
         info = sio.DenseInfo(
             "../run" if cfg.keep_run else None,
@@ -119,8 +156,10 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None) 
             path=tmp / "cameras.png",
             title=f"{len(scene)} input views (blue) + {len(views.frames)} synthesized (orange)",
         )
-        if not cfg.keep_run:
-            shutil.rmtree(tmp / "run")
+        if cfg.keep_run and trained != tmp / "run":
+            shutil.copytree(trained, tmp / "run")
+        elif not cfg.keep_run and trained == tmp / "run":
+            shutil.rmtree(trained)
     return dense
 
 
@@ -149,12 +188,19 @@ def densify_bytes(photos: Scene, n_new: int, downscaled: bool) -> int:
 
 
 def _views(
-    run: Run, scene: Scene, written: Scene, targets: list, cfg: DensifyConfig, holdout: tuple[int, ...]
+    run: Run,
+    scene: Scene,
+    written: Scene,
+    targets: list,
+    cfg: DensifyConfig,
+    holdout: tuple[int, ...],
+    store: FitStore | None = None,
 ) -> tuple[list, Checked, dict[str, MadeFrom]]:
     """(the planned frames, the views to write, the photos that fed each view): all synthesized from the photos
     minus ``holdout`` (positions); every view of the paper's plan with ``check.recon`` none;
     else planned as :func:`~sparself.evaluation.selfcheck.plan_of` says and kept only where they pay
-    (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout)."""
+    (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout; its fits
+    kept in ``store``)."""
     check = cfg.check
     if check.recon == "none":
         if check.plan_mode == "weak":
@@ -163,7 +209,7 @@ def _views(
         return targets, Checked(targets, syn.images, syn.confidence, None), syn.sources_by_name(targets)
     synth = lambda sc, tg, **_: synthesize_with_confidence(run, sc, tg)  # noqa: E731
     targets, checked, final = checked_views(
-        written.without(holdout), targets, cfg.plan, synth, check, scene.without(holdout)
+        written.without(holdout), targets, cfg.plan, synth, check, scene.without(holdout), store=store
     )
     assert isinstance(final, Synthesized)  # the run's answer, not a baseline's array
     return targets, checked, final.sources_by_name(targets)

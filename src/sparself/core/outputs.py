@@ -16,7 +16,7 @@ import shutil
 import stat
 import tempfile
 from pathlib import Path
-from typing import Iterable, Iterator, NamedTuple
+from typing import Callable, Iterable, Iterator, NamedTuple
 
 from sparself.core.errors import OutputError
 from sparself.core.locks import output_lock
@@ -245,6 +245,45 @@ def scratch_dir(out: Path | str | None, tag: str) -> Iterator[Path]:
         yield d
     finally:
         shutil.rmtree(d, ignore_errors=True)
+
+
+def work_path(out: Path | str) -> Path:
+    """Where a long command keeps its finished steps for ``out``: ``.NAME.sparself-work`` beside it."""
+    r_out = real(out)
+    return r_out.parent / f".{sibling_stem(r_out.name)}.sparself-work"
+
+
+@contextlib.contextmanager
+def work_dir(out: Path | str, resume: bool, worth_keeping: Callable[[Path], bool]) -> Iterator[Path | None]:
+    """The block's work folder for ``out`` (:func:`work_path`), marked as sparself's: the one a stopped run left
+    when ``resume``, else a new one (a stopped run's is removed first). It is removed when the block ends, and
+    kept after an error or an interrupt when ``worth_keeping(folder)``, for the next run to resume from. None
+    (nothing is kept) when ``out`` is a mount point, filled in place: no folder of ours may stand inside it."""
+    r_out = real(out)
+    if _in_place(r_out):
+        yield None
+        return
+    path = work_path(out)
+    if path.exists() and not (path / MARKER).is_file():
+        raise OutputError(f"{path}: in the way of the work folder of {out}, and sparself did not write it; move it")
+    if path.exists() and not resume:
+        log.info("%s: removing what a stopped run left there (--resume continues from it)", path)
+        shutil.rmtree(path)
+    elif resume and path.exists():
+        log.info("resuming from %s", path)
+    elif resume:
+        log.warning("%s: no stopped run to resume (nothing in %s); starting from the beginning", out, path)
+    path.mkdir(parents=True, exist_ok=True)
+    write_marker(path)
+    try:
+        yield path
+    except BaseException as e:
+        if not worth_keeping(path):
+            shutil.rmtree(path, ignore_errors=True)
+        elif not isinstance(e, KeyboardInterrupt):  # an interrupted command's last line says it
+            log.warning("%s: the finished steps are kept in %s; the same command with --resume continues", out, path)
+        raise
+    shutil.rmtree(path, ignore_errors=True)
 
 
 def _usual_mode(path: Path, mode: int) -> None:

@@ -65,7 +65,7 @@ with each other, so they need not be the user's final fit, only alike.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, fields, is_dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Literal
 
 import numpy as np
@@ -74,6 +74,7 @@ import torch
 from sparself.capture.images import resize_images
 from sparself.capture.io.dense import Confirmation, FixRound, GapTrend, SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
+from sparself.core.content import same_content
 from sparself.core.errors import ConfigError
 from sparself.core.metrics import clear_gain, standard_error
 from sparself.core.options import check_choices, option
@@ -102,7 +103,7 @@ from sparself.evaluation.weighting import (
 )
 from sparself.model.fixer import Fixer
 from sparself.recon import Renderer, backend
-from sparself.recon.pool import FitPool, Fitter, side_by_side
+from sparself.recon.pool import FitPool, FitStore, Fitter, side_by_side
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, weakness_decides
 from sparself.synthesis.synthesize import Synthesized
 
@@ -288,10 +289,12 @@ def other_seed(cfg: SelfCheckConfig) -> SelfCheckConfig | None:
     return replace(cfg, check_seed=cfg.check_seed + 1) if cfg.seed_noise and "seed" in check_settings(cfg) else None
 
 
-def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
+def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None, store: FitStore | None = None) -> FitMany:
     """fits(scenes) -> renderers for ``cfg.recon`` with the self-check's steps and seed, run by ``pool``
-    (default: one after the other in this process)."""
+    (default: one after the other in this process); with ``store``, kept there and read back from there."""
     fitter, pool = Fitter(cfg.recon, check_settings(cfg)), pool or FitPool(1)
+    if store is not None:
+        return lambda scenes: store.many(fitter, scenes, pool)
     return lambda scenes: fitter.many(scenes, pool)
 
 
@@ -329,20 +332,6 @@ def reusing(fits: FitMany, done: list[tuple[Scene, Renderer]]) -> FitMany:
         return [next(new) if r is None else r for r in found]
 
     return run
-
-
-def same_content(a, b) -> bool:
-    """Whether two values are equal field by field, arrays element by element (dataclasses such as a Scene and its
-    frames, dicts, lists, tuples, arrays, and anything else by ``==``)."""
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
-    if is_dataclass(a) and not isinstance(a, type):
-        return type(a) is type(b) and all(same_content(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
-    if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(same_content(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)):
-        return type(a) is type(b) and len(a) == len(b) and all(same_content(x, y) for x, y in zip(a, b))
-    return bool(a == b)
 
 
 def check_workers(cfg: SelfCheckConfig) -> int:
@@ -1245,18 +1234,20 @@ def checked_views(
     sources: Scene | None = None,
     fits: FitMany | None = None,
     other: FitMany | None = None,
+    store: FitStore | None = None,
 ) -> tuple[list[Frame], Checked, Synthesized | np.ndarray]:
     """What ``densify --recon cfg.recon`` writes: (the planned frames, the kept views, the network's answer
     for every planned frame). The poses are ``paper`` (the paper's plan) or, where :func:`plan_of` is weak,
     :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
     :func:`self_check` on ``inputs``; ``fits``: how the fits run (default: :func:`check_fits` in a pool of
     :func:`check_workers` processes), ``other``: at the second seed (default: :func:`other_seed`'s fits in
-    that pool, when ``fits`` is not given)."""
+    that pool, when ``fits`` is not given); ``store``: where those fits are kept and read back from (a run
+    stopped and started again fits only what it had not)."""
     if fits is None:
         with FitPool(check_workers(cfg)) as pool:
             second = other_seed(cfg)
-            other = None if second is None else check_fits(second, pool)
-            fits = remembering(check_fits(cfg, pool))  # e.g. the confirmation's bases, when a second way decides
+            other = None if second is None else check_fits(second, pool, store)
+            fits = remembering(check_fits(cfg, pool, store))  # e.g. the confirmation's bases, when a second way decides
             return checked_views(inputs, paper, plan, synth, cfg, sources, fits, other)
     mode = plan_of(cfg)
     targets = weakest_plan(at_check_size(inputs, cfg), plan, fits, cfg.gain_gap) if mode == "weak" else paper

@@ -13,9 +13,11 @@ import signal
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Callable, Sequence, TypeVar
 
 from sparself.capture.scene import Scene
+from sparself.core.content import digest, keep, kept
 from sparself.recon import Renderer, backend, get_reconstructor
 
 log = logging.getLogger(__name__)
@@ -145,3 +147,26 @@ class Fitter:
             return pool.run(jobs)
         with FitPool(min(side_by_side(self.name), len(scenes))) as own:
             return own.run(jobs)
+
+
+@dataclass(frozen=True)
+class FitStore:
+    """Fits kept on disk in ``folder``, each under the digest of its reconstructor, settings and scene
+    (:func:`~sparself.core.content.digest`), so that work stopped and started again fits only what it had not
+    fitted yet. The fits are seeded: a kept fit is the one the same job would make again."""
+
+    folder: Path
+
+    def many(self, fitter: Fitter, scenes: list[Scene], pool: FitPool | None = None) -> list[Renderer]:
+        """``fitter.many(scenes, pool)``, with the fits found here read back instead of fitted, and the others
+        kept here as they come (a renderer that cannot be pickled is fitted again next time)."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        paths = [self.folder / f"{digest((fitter.name, fitter.settings, sc))}.pkl" for sc in scenes]
+        found: list[Renderer | None] = [kept(p) for p in paths]
+        todo = [k for k, r in enumerate(found) if r is None]
+        if len(todo) < len(found):
+            log.info("%d of %d fits read back from %s", len(found) - len(todo), len(found), self.folder)
+        new = dict(zip(todo, fitter.many([scenes[k] for k in todo], pool) if todo else []))
+        for k, r in new.items():
+            keep(paths[k], r)
+        return [new[k] if r is None else r for k, r in enumerate(found)]
