@@ -515,3 +515,51 @@ def test_the_rows_and_the_checks_fit_in_one_pool_where_they_would_start_as_many_
         assert started == [2] and written == [rows_pool, rows_pool]
     else:
         assert started == [2, 1] and rows_pool not in written
+
+
+def test_a_stopped_evaluation_resumes_from_its_fits_to_the_same_results(tmp_path, monkeypatch):
+    """An evaluation stopped among its fits keeps those it finished beside its output; ``resume`` fits only the
+    others and writes the results a run never stopped writes."""
+    from sparself.core.outputs import work_path
+    from sparself.recon import pool
+    from sparself.recon.pool import Fitter
+
+    hooks, _ = _hooks()
+    splat = dict(steps=0, min_steps_per_view=4, init_points=150, max_gaussians=300, progress=False, seed=0)
+    hooks["reconstructors"] = {"3dgs": Fitter("splat", splat)}
+    capture = _capture(tmp_path / "cap")
+    cfg = _tiny_cfg(check_steps=20, densify_baselines=(), weighted=False, seeds=1)
+    fit, fitted, stop_at = pool._fitted, [], []
+
+    def counted(fitters, scenes, within):
+        if stop_at and len(fitted) >= stop_at[0]:
+            raise KeyboardInterrupt
+        fitted.extend(scenes)
+        return fit(fitters, scenes, within)
+
+    monkeypatch.setattr(pool, "_fitted", counted)
+    ev.evaluate([capture], tmp_path / "whole", cfg, **hooks)
+    total = len(fitted)
+    fitted.clear()
+    stop_at.append(4)
+    with pytest.raises(KeyboardInterrupt):
+        ev.evaluate([capture], tmp_path / "stopped", cfg, **hooks)
+    kept = list((work_path(tmp_path / "stopped") / "fits").glob("*.pkl"))
+    assert not (tmp_path / "stopped").exists() and len(kept) == len(fitted) >= 4
+    done = len(fitted)
+    stop_at.clear()
+    fitted.clear()
+    ev.evaluate([capture], tmp_path / "stopped", cfg, resume=True, **hooks)
+    assert len(fitted) == total - done and not work_path(tmp_path / "stopped").exists()
+    whole, resumed = (
+        json.loads((tmp_path / d / "results.json").read_text())["scenes"][0] for d in ("whole", "stopped")
+    )
+    for key in ("view_synthesis", "densification"):  # repr: a NaN equals itself; times differ
+        assert repr(_untimed(resumed[key])) == repr(_untimed(whole[key])) and "psnr" in repr(whole[key])
+
+
+def _untimed(value):
+    """``value`` (read from results.json) without its timings: every key naming seconds."""
+    if isinstance(value, dict):
+        return {k: _untimed(v) for k, v in value.items() if "seconds" not in k}
+    return [_untimed(v) for v in value] if isinstance(value, list) else value

@@ -15,7 +15,8 @@ from sparself import pipeline
 from sparself.core.content import digest, keep, kept
 from sparself.core.errors import OutputError
 from sparself.core.outputs import MARKER, work_dir, work_path
-from sparself.recon.pool import FitStore, Fitter
+from sparself.recon import pool
+from sparself.recon.pool import Fitter
 from test_bad_input import write_photos
 
 
@@ -48,19 +49,22 @@ def test_kept_values_come_back_equal_and_a_broken_file_is_a_miss(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pkl", "s.pkl"]  # no temporary file left
 
 
-def test_the_fit_store_fits_each_scene_once_per_reconstructor_and_settings(tmp_path, monkeypatch):
+def test_fits_inside_a_work_folder_are_fitted_once_per_reconstructor_settings_and_scene(tmp_path, monkeypatch):
     fitted = []
-    monkeypatch.setattr(Fitter, "many", lambda self, scenes, pool=None: [fitted.append(sc) or sc for sc in scenes])
+    monkeypatch.setattr(pool, "_fitted", lambda fitters, scenes, within: [fitted.append(sc) or sc for sc in scenes])
     scene = small_plane_scene(5)
     a, b = scene.subset([0, 1, 2]), scene.subset([2, 3, 4])
-    store = FitStore(tmp_path / "fits")
     fitter = Fitter("3dgs", {"steps": 30, "seed": 0})
-    assert [digest(r) for r in store.many(fitter, [a, b])] == [digest(a), digest(b)]
-    again = store.many(fitter, [b, a, replace(a, bounds=(1.0, 5.0))])
-    assert len(fitted) == 3 and digest(again[:2]) == digest([b, a])  # only the new scene was fitted
-    store.many(fitter.with_seed(1), [a])
-    store.many(Fitter("mpi"), [a])
-    assert len(fitted) == 5 and len(list((tmp_path / "fits").glob("*.pkl"))) == 5
+    with work_dir(tmp_path / "out", False) as work:
+        assert [digest(r) for r in fitter.many([a, b])] == [digest(a), digest(b)]
+        again = fitter.many([b, a, replace(a, bounds=(1.0, 5.0))])
+        assert len(fitted) == 3 and digest(again[:2]) == digest([b, a])  # only the new scene was fitted
+        fitter.with_seed(1).many([a])
+        fitter.many([a], seeds=[2])
+        Fitter("mpi")(a)
+        assert len(fitted) == 6 and len(list((work / "fits").glob("*.pkl"))) == 6
+    fitter.many([a])  # outside a work folder: nothing kept, everything fitted
+    assert len(fitted) == 7
 
 
 def test_sfm_poses_are_read_back_only_for_the_same_photos_and_options(tmp_path, monkeypatch):

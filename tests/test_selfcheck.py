@@ -963,7 +963,7 @@ def test_densify_fits_a_scene_of_real_photos_once_per_check(monkeypatch):
     monkeypatch.setattr(
         selfcheck,
         "check_fits",
-        lambda cfg, pool=None, store=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes],
+        lambda cfg, pool=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes],
     )
     monkeypatch.setattr(selfcheck, "self_check", lambda inputs, *a: [a[5]([inputs.subset(range(3))])[0] for _ in "ab"])
     scene = _line(6)
@@ -976,17 +976,17 @@ def test_a_stopped_densify_resumes_from_its_fits_to_the_same_scene(tmp_path, mon
     """A densify stopped in its self-check keeps the fits it finished beside its output, and ``resume`` fits only
     the others and writes what a run never stopped writes."""
     from sparself.core.outputs import work_path
-    from sparself.recon.pool import Fitter
+    from sparself.recon import pool
 
-    many, fitted = Fitter.many, []
+    fit, fitted = pool._fitted, []
 
-    def counted(self, scenes, pool=None, seeds=None):
+    def counted(fitters, scenes, within):
         if stop_at and len(fitted) >= stop_at:
             raise KeyboardInterrupt
         fitted.extend(scenes)
-        return many(self, scenes, pool, seeds)
+        return fit(fitters, scenes, within)
 
-    monkeypatch.setattr(Fitter, "many", counted)
+    monkeypatch.setattr(pool, "_fitted", counted)
     stop_at = 0
     whole = _densify(tmp_path / "whole", monkeypatch, _exact)
     total, fitted[:] = len(fitted), []

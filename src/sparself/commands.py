@@ -106,6 +106,12 @@ def add_evaluate(sub) -> None:
     p.add_argument("--manifest", type=Path, default=None, help="file listing scene paths, one per line")
     eval_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an evaluation that was stopped (Ctrl-C, kill, an error) from its networks' checkpoints and "
+        "its finished fits, kept in .OUT.sparself-work beside --out (the same results as a run never stopped)",
+    )
     add_common_options(p)
     p.set_defaults(func=run_evaluate)
 
@@ -135,21 +141,47 @@ def eval_options(p: argparse.ArgumentParser) -> None:
     train_options(g, skip=EVAL_OWNS)
 
 
+def kept_work_hint(args) -> str:
+    """After Ctrl-C in `densify` or `evaluate`: nothing written, and either where the finished steps are kept with
+    the exact command that continues from them, or that the command must be run again."""
+    from sparself.core.outputs import work_path
+
+    work = work_path(args.out)
+    if not work.is_dir():
+        return f"nothing was written to {args.out}; run the command again"
+    return (
+        f"nothing was written to {args.out}; the finished steps are kept in {work}; continue with: "
+        f"{resume_command(args)}"
+    )
+
+
+def resume_command(args) -> str:
+    """The command as typed, with ``--resume`` and without ``--overwrite`` (which would start again)."""
+    import shlex
+
+    argv = [a for a in args.argv if a != "--overwrite"]
+    return "sparself " + shlex.join(argv + ([] if "--resume" in argv else ["--resume"]))
+
+
 def run_evaluate(args) -> int:
     from sparself.core.options import given
     from sparself.evaluation.config import EvalConfig
     from sparself.evaluation.evaluate import run_cli
 
     t0 = time.perf_counter()
-    res = run_cli(
-        args.scenes,
-        args.out,
-        args.manifest,
-        quick=args.quick,
-        overwrite=args.overwrite,
-        train_cfg=train_config(args, skip=EVAL_OWNS),
-        **given(EvalConfig, args),
-    )
+    try:
+        res = run_cli(
+            args.scenes,
+            args.out,
+            args.manifest,
+            quick=args.quick,
+            overwrite=args.overwrite,
+            resume=args.resume,
+            train_cfg=train_config(args, skip=EVAL_OWNS),
+            **given(EvalConfig, args),
+        )
+    except KeyboardInterrupt:  # its output appears whole or not at all; its finished steps may be kept
+        raise KeyboardInterrupt(kept_work_hint(args)) from None
     bad = [s.name for s in res.failed]
     print(
         f"evaluated {len(res.scenes) - len(bad)} scene(s) -> {args.out / 'report.md'}"

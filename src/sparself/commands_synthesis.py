@@ -12,8 +12,10 @@ from sparself.commands import (
     add_common_options,
     eval_options,
     export_options,
+    kept_work_hint,
     plan_config,
     plan_options,
+    resume_command,
     took,
     train_config,
     train_options,
@@ -189,34 +191,12 @@ def run_densify(args) -> int:
     try:
         dense = densify(args.photos, args.out, densify_config(args, overwrite=args.overwrite), resume=args.resume)
     except KeyboardInterrupt:  # its output appears whole or not at all; its finished steps may be kept
-        raise KeyboardInterrupt(densify_hint(args)) from None
+        raise KeyboardInterrupt(kept_work_hint(args)) from None
     print(
         f"wrote {views_summary(dense)} -> {args.out / 'scene'} (run: {args.out / 'run'}, plan: "
         f"{args.out / 'plan.json'}) in {took(t0)}"
     )
     return 0
-
-
-def densify_hint(args) -> str:
-    """After Ctrl-C in `densify`: nothing written, and either where the finished steps are kept with the exact
-    command that continues from them, or that the command must be run again."""
-    from sparself.core.outputs import work_path
-
-    work = work_path(args.out)
-    if not work.is_dir():
-        return f"nothing was written to {args.out}; run the command again"
-    return (
-        f"nothing was written to {args.out}; the finished steps are kept in {work}; continue with: "
-        f"{resume_command(args)}"
-    )
-
-
-def resume_command(args) -> str:
-    """The command as typed, with ``--resume`` and without ``--overwrite`` (which would start again)."""
-    import shlex
-
-    argv = [a for a in args.argv if a != "--overwrite"]
-    return "sparself " + shlex.join(argv + ([] if "--resume" in argv else ["--resume"]))
 
 
 def batch_options(p: argparse.ArgumentParser) -> None:

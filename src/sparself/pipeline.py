@@ -21,9 +21,8 @@ from sparself.core.options import option
 from sparself.core.outputs import Input, atomic_dir, check_output_dir, real, scene_inputs, work_dir
 from sparself.core.space import MB, check_free_space, files_size
 from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
-from sparself.recon.pool import FitStore
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
-from sparself.synthesis.run import CHECKPOINT, CONFIG, Run
+from sparself.synthesis.run import CONFIG, Run
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
 from sparself.synthesis.train_config import TrainConfig
@@ -104,18 +103,14 @@ def densify(photos_or_scene, out: Path | str, cfg: DensifyConfig | None = None, 
     out = Path(out)
     given = isinstance(photos_or_scene, Scene)
     check_output_dir(out, cfg.overwrite, scene_inputs(photos_or_scene) if given else [Input("input", photos_or_scene)])
-    with output_lock(out), work_dir(out, resume, _worth_keeping) as work:
+    with output_lock(out), work_dir(out, resume) as work:
         scene = photos_or_scene if given else read_input(Path(photos_or_scene), cfg, out, work)
         return _densify(scene, out, cfg, work)
 
 
-def _worth_keeping(work: Path) -> bool:
-    """Whether a stopped run's work folder holds a finished step: poses, a checkpoint or a fit."""
-    return (work / POSES).is_file() or (work / "run" / CHECKPOINT).is_file() or any((work / "fits").glob("*.pkl"))
-
-
 def _densify(scene: Scene, out: Path, cfg: DensifyConfig, work: Path | None) -> Scene:
-    """:func:`densify` from the posed scene on, the network trained in ``work`` and the fits kept there."""
+    """:func:`densify` from the posed scene on, the network trained in ``work`` (the fits are kept there too:
+    :meth:`~sparself.recon.pool.Fitter.many`)."""
     check_output_dir(out, cfg.overwrite, scene_inputs(scene))  # before any training
     photos = scene  # at their own size: triangulation matches them at up to 800 px
     if cfg.out_size:
@@ -135,8 +130,7 @@ def _densify(scene: Scene, out: Path, cfg: DensifyConfig, work: Path | None) -> 
         run = train(scene, trained, tcfg, resume=(trained / CONFIG).is_file(), overwrite=True)
         # points for the written scene (training and synthesis are the same with or without them) and the fits
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
-        store = None if work is None else FitStore(work / "fits")
-        planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout, store)
+        planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout)
         dense = densify_scene(written, views.frames, views.images, views.confidence)
         info = sio.DenseInfo(
             "../run" if cfg.keep_run else None,
@@ -188,19 +182,12 @@ def densify_bytes(photos: Scene, n_new: int, downscaled: bool) -> int:
 
 
 def _views(
-    run: Run,
-    scene: Scene,
-    written: Scene,
-    targets: list,
-    cfg: DensifyConfig,
-    holdout: tuple[int, ...],
-    store: FitStore | None = None,
+    run: Run, scene: Scene, written: Scene, targets: list, cfg: DensifyConfig, holdout: tuple[int, ...]
 ) -> tuple[list, Checked, dict[str, MadeFrom]]:
     """(the planned frames, the views to write, the photos that fed each view): all synthesized from the photos
     minus ``holdout`` (positions); every view of the paper's plan with ``check.recon`` none;
     else planned as :func:`~sparself.evaluation.selfcheck.plan_of` says and kept only where they pay
-    (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout; its fits
-    kept in ``store``)."""
+    (:func:`sparself.evaluation.selfcheck.self_check`, on ``written``'s photos minus the user's holdout)."""
     check = cfg.check
     if check.recon == "none":
         if check.plan_mode == "weak":
@@ -209,7 +196,7 @@ def _views(
         return targets, Checked(targets, syn.images, syn.confidence, None), syn.sources_by_name(targets)
     synth = lambda sc, tg, **_: synthesize_with_confidence(run, sc, tg)  # noqa: E731
     targets, checked, final = checked_views(
-        written.without(holdout), targets, cfg.plan, synth, check, scene.without(holdout), store=store
+        written.without(holdout), targets, cfg.plan, synth, check, scene.without(holdout)
     )
     assert isinstance(final, Synthesized)  # the run's answer, not a baseline's array
     return targets, checked, final.sources_by_name(targets)

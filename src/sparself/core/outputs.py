@@ -247,6 +247,20 @@ def scratch_dir(out: Path | str | None, tag: str) -> Iterator[Path]:
         shutil.rmtree(d, ignore_errors=True)
 
 
+_working: list[Path] = []  # the work folders of the blocks running in this process, innermost last
+
+
+def current_work() -> Path | None:
+    """The work folder of the innermost :func:`work_dir` block running in this process (None outside one): where
+    long steps keep what they finish (fits, training runs) for a stopped command to resume from."""
+    return _working[-1] if _working else None
+
+
+def finished_work(folder: Path) -> bool:
+    """Whether a work folder holds a finished step: a kept value (``*.pkl``) or a checkpoint (``*.pt``)."""
+    return any(p.suffix in (".pkl", ".pt") for p in folder.rglob("*") if p.is_file())
+
+
 def work_path(out: Path | str) -> Path:
     """Where a long command keeps its finished steps for ``out``: ``.NAME.sparself-work`` beside it."""
     r_out = real(out)
@@ -254,7 +268,9 @@ def work_path(out: Path | str) -> Path:
 
 
 @contextlib.contextmanager
-def work_dir(out: Path | str, resume: bool, worth_keeping: Callable[[Path], bool]) -> Iterator[Path | None]:
+def work_dir(
+    out: Path | str, resume: bool, worth_keeping: Callable[[Path], bool] = finished_work
+) -> Iterator[Path | None]:
     """The block's work folder for ``out`` (:func:`work_path`), marked as sparself's: the one a stopped run left
     when ``resume``, else a new one (a stopped run's is removed first). It is removed when the block ends, and
     kept after an error or an interrupt when ``worth_keeping(folder)``, for the next run to resume from. None
@@ -275,6 +291,7 @@ def work_dir(out: Path | str, resume: bool, worth_keeping: Callable[[Path], bool
         log.warning("%s: no stopped run to resume (nothing in %s); starting from the beginning", out, path)
     path.mkdir(parents=True, exist_ok=True)
     write_marker(path)
+    _working.append(path)
     try:
         yield path
     except BaseException as e:
@@ -283,6 +300,8 @@ def work_dir(out: Path | str, resume: bool, worth_keeping: Callable[[Path], bool
         elif not isinstance(e, KeyboardInterrupt):  # an interrupted command's last line says it
             log.warning("%s: the finished steps are kept in %s; the same command with --resume continues", out, path)
         raise
+    finally:
+        _working.remove(path)
     shutil.rmtree(path, ignore_errors=True)
 
 

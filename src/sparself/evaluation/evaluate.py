@@ -17,7 +17,8 @@ from sparself.capture.io import read_scene
 from sparself.capture.scene import Scene
 from sparself.core import metrics
 from sparself.core.errors import InputError
-from sparself.core.outputs import Input, atomic_dir, check_not_input, evaluation_inputs
+from sparself.core.locks import output_lock
+from sparself.core.outputs import Input, atomic_dir, check_not_input, check_output_dir, evaluation_inputs, work_dir
 from sparself.evaluation.config import DIETNERF_NOTE, EvalConfig, eval_config
 from sparself.evaluation.instruments import versions
 from sparself.evaluation.protocol import evaluate_scene, name_from_source, run_name, scene_name
@@ -116,13 +117,23 @@ def _failed(label: str, e: Exception, cfg: EvalConfig, n_inputs: int | None = No
 
 
 def evaluate(
-    scenes: Sequence[Scene | Path], out: Path, cfg: EvalConfig | None = None, *, overwrite: bool = False, **hooks
+    scenes: Sequence[Scene | Path],
+    out: Path,
+    cfg: EvalConfig | None = None,
+    *,
+    overwrite: bool = False,
+    resume: bool = False,
+    **hooks,
 ) -> Results:
     """Run the protocol and write ``results.json``, ``report.md``, ``report.html`` and figures to ``out``
-    (atomically: nothing is left there if it fails). Returns the results."""
+    (atomically: nothing is left there if it fails). Returns the results. While it runs, the networks' checkpoints
+    and the fits are kept in a work folder beside ``out`` (:func:`~sparself.core.outputs.work_dir`), left there
+    when the run is stopped; ``resume`` continues from them, to the same results as a run never stopped."""
     cfg = cfg or EvalConfig()
     cfg.validate()
-    with atomic_dir(Path(out), overwrite, evaluation_inputs(scenes)) as tmp:
+    inputs = evaluation_inputs(scenes)
+    check_output_dir(Path(out), overwrite, inputs)
+    with output_lock(out), work_dir(out, resume), atomic_dir(Path(out), overwrite, inputs) as tmp:
         results = run_evaluation(scenes, cfg, tmp, **hooks)
         (tmp / "results.json").write_text(json.dumps(results.to_json(), indent=1, allow_nan=True))
         write_report(results, tmp)
@@ -136,6 +147,7 @@ def run_cli(
     *,
     quick: bool = False,
     overwrite: bool = False,
+    resume: bool = False,
     train_cfg: TrainConfig | None = None,
     **given,
 ) -> Results:
@@ -152,4 +164,4 @@ def run_cli(
 
     cfg = eval_config(quick=quick, train_cfg=train_cfg, **given)
     cfg = replace(cfg, progress=cfg.progress and show_progress())  # no bar fragments in a log file, none with -q
-    return evaluate(paths, out, cfg, overwrite=overwrite)
+    return evaluate(paths, out, cfg, overwrite=overwrite, resume=resume)

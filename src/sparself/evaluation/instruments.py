@@ -15,12 +15,15 @@ import numpy as np
 from sparself.capture.images import load_image, resize_image
 from sparself.capture.scene import Frame, Scene
 from sparself.core import metrics
+from sparself.core.content import digest
 from sparself.core.errors import ConfigError, InputError
+from sparself.core.outputs import current_work
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
 from sparself.recon import Renderer, backend, get_reconstructor
 from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.baselines import BASELINES
+from sparself.synthesis.run import CONFIG
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
 from sparself.synthesis.train import train
 
@@ -81,7 +84,9 @@ def versions() -> dict:
 def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
     """The one adapter to the CNN-LSTM: ``make(inputs, seed)`` trains ``sparself.synthesis.train.train`` with
     ``cfg.train`` (seed, size and epochs from the evaluation) on the inputs, in a temporary run folder, and
-    returns the bound ``synthesize(scene, targets) -> Synthesized`` (images and confidence)."""
+    returns the bound ``synthesize(scene, targets) -> Synthesized`` (images and confidence). Inside a command's
+    work folder (:func:`~sparself.core.outputs.current_work`) the run folder is kept there, and a stopped run
+    continues from its checkpoint."""
     # resolved (and warned about) once, not once per scene and seed
     weights = cfg.train.weights if cfg.train.weights is not None else default_weights()
     base = replace(
@@ -89,8 +94,13 @@ def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
     )
 
     def make(scene: Scene, seed: int) -> SynthFn:
-        with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
-            run = train(scene, Path(tmp) / "run", replace(base, seed=seed), progress=cfg.progress)
+        tcfg, work = replace(base, seed=seed), current_work()
+        if work is None:
+            with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
+                run = train(scene, Path(tmp) / "run", tcfg, progress=cfg.progress)
+        else:  # kept for a stopped evaluation to resume from, under what the network is trained on and how
+            folder = work / "runs" / digest((scene, tcfg))[:20]
+            run = train(scene, folder, tcfg, resume=(folder / CONFIG).is_file(), overwrite=True, progress=cfg.progress)
         return lambda sc, targets, **_: synthesize_with_confidence(run, sc, targets)
 
     return make

@@ -103,7 +103,7 @@ from sparself.evaluation.weighting import (
 )
 from sparself.model.fixer import Fixer
 from sparself.recon import Renderer, backend
-from sparself.recon.pool import FitPool, FitStore, Fitter, side_by_side
+from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, weakness_decides
 from sparself.synthesis.synthesize import Synthesized
 
@@ -289,12 +289,10 @@ def other_seed(cfg: SelfCheckConfig) -> SelfCheckConfig | None:
     return replace(cfg, check_seed=cfg.check_seed + 1) if cfg.seed_noise and "seed" in check_settings(cfg) else None
 
 
-def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None, store: FitStore | None = None) -> FitMany:
+def check_fits(cfg: SelfCheckConfig, pool: FitPool | None = None) -> FitMany:
     """fits(scenes) -> renderers for ``cfg.recon`` with the self-check's steps and seed, run by ``pool``
-    (default: one after the other in this process); with ``store``, kept there and read back from there."""
+    (default: one after the other in this process)."""
     fitter, pool = Fitter(cfg.recon, check_settings(cfg)), pool or FitPool(1)
-    if store is not None:
-        return lambda scenes: store.many(fitter, scenes, pool)
     return lambda scenes: fitter.many(scenes, pool)
 
 
@@ -1234,20 +1232,18 @@ def checked_views(
     sources: Scene | None = None,
     fits: FitMany | None = None,
     other: FitMany | None = None,
-    store: FitStore | None = None,
 ) -> tuple[list[Frame], Checked, Synthesized | np.ndarray]:
     """What ``densify --recon cfg.recon`` writes: (the planned frames, the kept views, the network's answer
     for every planned frame). The poses are ``paper`` (the paper's plan) or, where :func:`plan_of` is weak,
     :func:`weakest_plan`'s; the views are synthesized from ``sources`` (default: ``inputs``) and kept by
     :func:`self_check` on ``inputs``; ``fits``: how the fits run (default: :func:`check_fits` in a pool of
     :func:`check_workers` processes), ``other``: at the second seed (default: :func:`other_seed`'s fits in
-    that pool, when ``fits`` is not given); ``store``: where those fits are kept and read back from (a run
-    stopped and started again fits only what it had not)."""
+    that pool, when ``fits`` is not given)."""
     if fits is None:
         with FitPool(check_workers(cfg)) as pool:
             second = other_seed(cfg)
-            other = None if second is None else check_fits(second, pool, store)
-            fits = remembering(check_fits(cfg, pool, store))  # e.g. the confirmation's bases, when a second way decides
+            other = None if second is None else check_fits(second, pool)
+            fits = remembering(check_fits(cfg, pool))  # e.g. the confirmation's bases, when a second way decides
             return checked_views(inputs, paper, plan, synth, cfg, sources, fits, other)
     mode = plan_of(cfg)
     targets = weakest_plan(at_check_size(inputs, cfg), plan, fits, cfg.gain_gap) if mode == "weak" else paper

@@ -18,6 +18,7 @@ from typing import Any, Callable, Sequence, TypeVar
 
 from sparself.capture.scene import Scene
 from sparself.core.content import digest, keep, kept
+from sparself.core.outputs import current_work
 from sparself.recon import Renderer, backend, get_reconstructor
 
 log = logging.getLogger(__name__)
@@ -127,7 +128,7 @@ class Fitter:
     settings: dict[str, Any] = field(default_factory=dict)
 
     def __call__(self, scene: Scene) -> Renderer:
-        return get_reconstructor(self.name)(scene, **self.settings)
+        return self.many([scene])[0]
 
     @property
     def seeded(self) -> bool:
@@ -140,13 +141,25 @@ class Fitter:
 
     def many(self, scenes: list[Scene], pool: FitPool | None = None, seeds: list[int] | None = None) -> list[Renderer]:
         """One renderer per scene, in order (scene k fitted with seed ``seeds[k]`` when given); run by ``pool``,
-        else by a pool opened for these fits."""
+        else by a pool opened for these fits. Inside a command's work folder
+        (:func:`~sparself.core.outputs.current_work`) the fits are kept there, and those kept read back
+        (:class:`FitStore`)."""
         each = [self] * len(scenes) if seeds is None else [self.with_seed(s) for s in seeds]
-        jobs = [(self.name, sc, f.settings) for sc, f in zip(scenes, each, strict=True)]
-        if pool is not None:
-            return pool.run(jobs)
-        with FitPool(min(side_by_side(self.name), len(scenes))) as own:
-            return own.run(jobs)
+        work = current_work()
+        if work is not None:
+            return FitStore(work / "fits").fitted(each, scenes, pool)
+        return _fitted(each, scenes, pool)
+
+
+def _fitted(fitters: list[Fitter], scenes: list[Scene], pool: FitPool | None) -> list[Renderer]:
+    """Scene k fitted by ``fitters[k]``, in order, by ``pool`` or by a pool opened for these fits."""
+    jobs = [(f.name, sc, f.settings) for sc, f in zip(scenes, fitters, strict=True)]
+    if pool is not None:
+        return pool.run(jobs)
+    if not jobs:
+        return []
+    with FitPool(min(side_by_side(fitters[0].name), len(jobs))) as own:
+        return own.run(jobs)
 
 
 @dataclass(frozen=True)
@@ -157,16 +170,16 @@ class FitStore:
 
     folder: Path
 
-    def many(self, fitter: Fitter, scenes: list[Scene], pool: FitPool | None = None) -> list[Renderer]:
-        """``fitter.many(scenes, pool)``, with the fits found here read back instead of fitted, and the others
-        kept here as they come (a renderer that cannot be pickled is fitted again next time)."""
+    def fitted(self, fitters: list[Fitter], scenes: list[Scene], pool: FitPool | None = None) -> list[Renderer]:
+        """Scene k fitted by ``fitters[k]``, in order: the fits found here read back, the others fitted (by
+        ``pool``) and kept here as they come (a renderer that cannot be pickled is fitted again next time)."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        paths = [self.folder / f"{digest((fitter.name, fitter.settings, sc))}.pkl" for sc in scenes]
+        paths = [self.folder / f"{digest((f.name, f.settings, sc))}.pkl" for f, sc in zip(fitters, scenes, strict=True)]
         found: list[Renderer | None] = [kept(p) for p in paths]
         todo = [k for k, r in enumerate(found) if r is None]
         if len(todo) < len(found):
             log.info("%d of %d fits read back from %s", len(found) - len(todo), len(found), self.folder)
-        new = dict(zip(todo, fitter.many([scenes[k] for k in todo], pool) if todo else []))
+        new = dict(zip(todo, _fitted([fitters[k] for k in todo], [scenes[k] for k in todo], pool)))
         for k, r in new.items():
             keep(paths[k], r)
         return [new[k] if r is None else r for k, r in enumerate(found)]
