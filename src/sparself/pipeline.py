@@ -151,7 +151,7 @@ def _densify(scene: Scene, out: Path, cfg: DensifyConfig, work: Path | None) -> 
             title=f"{len(scene)} input views (blue) + {len(views.frames)} synthesized (orange)",
         )
         if cfg.keep_run and trained != tmp / "run":
-            shutil.copytree(trained, tmp / "run")
+            shutil.move(trained, tmp / "run")  # a rename beside --out: no second copy of the checkpoint
         elif not cfg.keep_run and trained == tmp / "run":
             shutil.rmtree(trained)
     return dense
