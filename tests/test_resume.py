@@ -110,7 +110,7 @@ def test_the_work_folder_is_kept_only_after_a_stop_with_something_finished(tmp_p
     with caplog.at_level(logging.INFO), work_dir(out, True, lambda w: True) as w:
         assert (w / "step").is_file()  # resumed from it
     assert "resuming from" in caplog.text and not work.exists()
-    with caplog.at_level(logging.WARNING), work_dir(out, True, lambda w: True):
+    with caplog.at_level(logging.INFO), work_dir(out, True, lambda w: True):
         pass
     assert "no stopped run to resume" in caplog.text
 

@@ -186,7 +186,7 @@ def test_interrupted_command_leaves_nothing(scene, tmp_path):
     t0 = time.monotonic()
     # wait until training writes into its work folder (a hidden .out.sparself-work beside the output), before its
     # first checkpoint: nothing finished, so nothing is kept
-    work_log = ".out.sparself-work/run/train_log.csv"
+    work_log = ".out.sparself-work/runs/*/train_log.csv"
     while proc.poll() is None and time.monotonic() - t0 < 300 and not list(res.glob(work_log)):
         time.sleep(0.01)
     assert proc.poll() is None, proc.communicate()[1]

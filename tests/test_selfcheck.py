@@ -53,7 +53,12 @@ def _densify(tmp_path, monkeypatch, views, check=MPI, resume=False):
         imgs = views(scene, targets)
         return Synthesized(imgs, np.full(imgs.shape[:3], 0.9, np.float32))
 
+    def fake_resumable(parent, scene, cfg, **_):
+        (parent / "run").mkdir(parents=True, exist_ok=True)
+        return argparse.Namespace(path=parent / "run")
+
     monkeypatch.setattr(pipeline, "train", fake_train)
+    monkeypatch.setattr(pipeline, "train_resumable", fake_resumable)
     monkeypatch.setattr(pipeline, "synthesize_with_confidence", fake_synth)
     cfg = pipeline.DensifyConfig(plan=PLAN, check=check, triangulate=False, keep_run=False, downscaled=False)
     return pipeline.densify(_line(), tmp_path / "out", cfg, resume=resume)

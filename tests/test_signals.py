@@ -73,7 +73,7 @@ def test_signal_during_densify_before_anything_is_finished_leaves_nothing(scene,
     need("densify")
     res = tmp_path / "res"
     res.mkdir()
-    proc = _densify_until(res, scene, ".out.sparself-work/run/train_log.csv", "--checkpoint-every", "1000")
+    proc = _densify_until(res, scene, ".out.sparself-work/runs/*/train_log.csv", "--checkpoint-every", "1000")
     line = _interrupted(proc, sig)
     name = signal.Signals(sig).name
     assert (
@@ -89,7 +89,7 @@ def test_sigterm_during_densify_keeps_the_checkpoint_and_the_printed_command_con
     res = tmp_path / "res"
     res.mkdir()
     work = res / ".out.sparself-work"
-    proc = _densify_until(res, scene, ".out.sparself-work/run/checkpoint.pt")
+    proc = _densify_until(res, scene, ".out.sparself-work/runs/*/checkpoint.pt")
     line = _interrupted(proc, signal.SIGTERM)
     hint = (
         f"sparself densify: interrupted by SIGTERM; nothing was written to {res / 'out'}; the finished steps are "
@@ -97,7 +97,8 @@ def test_sigterm_during_densify_keeps_the_checkpoint_and_the_printed_command_con
     )
     assert line.startswith(hint), line
     assert listing(res) == [work.name]  # no output and no temporary folder: only the work folder
-    epoch = torch.load(work / "run" / "checkpoint.pt", weights_only=False)["epoch"]
+    [checkpoint] = work.glob("runs/*/checkpoint.pt")
+    epoch = torch.load(checkpoint, weights_only=False)["epoch"]
     resume = shlex.split(line[len(hint) :])
     assert resume[-1] == "--resume" and resume.index("500")
     resume[resume.index("500")] = str(epoch + 1)  # the printed command, to a nearer end to keep the test short
@@ -153,7 +154,7 @@ def test_sigterm_on_a_colmap_scene_is_ctrl_c_in_densify(colmap_scene, tmp_path):
     argv = ["densify", colmap_scene, "--out", res / "out", "--epochs", "500", "--n-mid", "2", "--n-extra", "1"]
     err = _sigterm_under_timeout(
         [*argv, *DENSIFY, "--checkpoint-every", "1000"],
-        lambda: list(res.glob(".out.sparself-work/run/train_log.csv")),
+        lambda: list(res.glob(".out.sparself-work/runs/*/train_log.csv")),
         "training started",
     )
     assert err.splitlines()[-1] == (

@@ -334,3 +334,17 @@ def test_end_targets_off_trains_only_on_targets_between_their_sources():
     three = leave_one_out(Sources.from_scene(plane_scene(3)).posed(PoseNorm((0.0, 0.0, 0.0), 1.0)))
     assert trained_targets(three, False).all()  # only one inner target: keep them all
     assert not TrainConfig().end_targets and TrainConfig(end_targets=True).end_targets
+
+
+def test_a_resumable_run_continues_in_its_own_folder_and_other_options_train_in_another(tmp_path, tiny_cfg, caplog):
+    from sparself.synthesis.train import train_resumable
+
+    scene = plane_scene()
+    one = train_resumable(tmp_path, scene, tiny_cfg(epochs=1))
+    with caplog.at_level(logging.INFO, logger="sparself"):
+        more = train_resumable(tmp_path, scene, tiny_cfg(epochs=2))  # more epochs: the same run, continued
+    assert more.path == one.path and "resuming" in caplog.text
+    assert torch.load(more.path / "checkpoint.pt", weights_only=False)["epoch"] == 2
+    other = train_resumable(tmp_path, scene, tiny_cfg(epochs=1, planes=4))
+    moved = train_resumable(tmp_path, scene.subset(range(len(scene) - 1)), tiny_cfg(epochs=1))
+    assert len({one.path, other.path, moved.path}) == 3 and {p.parent for p in (other.path, moved.path)} == {tmp_path}

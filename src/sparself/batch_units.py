@@ -214,7 +214,7 @@ def run_unit(unit: Unit) -> UnitResult:
 
 def densify_unit(unit: Unit) -> UnitResult:
     assert isinstance(unit.config, DensifyConfig)
-    dense = densify(unit.source, unit.out, unit.config)
+    dense = densify(unit.source, unit.out, unit.config, resume=True)  # from what a stopped batch left
     n_syn = sum(bool(f.synthetic) for f in dense.frames)
     return UnitResult(unit.capture, unit.seed, "ok", views=len(dense.frames) - n_syn, synthesized=n_syn)
 
@@ -222,7 +222,7 @@ def densify_unit(unit: Unit) -> UnitResult:
 def evaluate_unit(unit: Unit) -> UnitResult:
     assert isinstance(unit.config, EvalConfig)
     scene = read_scene(unit.source)  # an unreadable capture fails here and writes nothing
-    res = evaluate([scene], unit.out, unit.config, overwrite=True)
+    res = evaluate([scene], unit.out, unit.config, overwrite=True, resume=True)
     s = res.scenes[0]
     if s.status != "ok":
         raise SparselfError((s.error if isinstance(s, SceneFailure) else "evaluation failed").splitlines()[0])

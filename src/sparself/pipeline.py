@@ -22,9 +22,9 @@ from sparself.core.outputs import Input, atomic_dir, check_output_dir, real, sce
 from sparself.core.space import MB, check_free_space, files_size
 from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, checked_views
 from sparself.synthesis.plan import PlanConfig, plan_sequence, save_plan
-from sparself.synthesis.run import CONFIG, Run
+from sparself.synthesis.run import Run
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
-from sparself.synthesis.train import MIN_TRAIN, check_holdout, train
+from sparself.synthesis.train import MIN_TRAIN, check_holdout, train, train_resumable
 from sparself.synthesis.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -126,8 +126,7 @@ def _densify(scene: Scene, out: Path, cfg: DensifyConfig, work: Path | None) -> 
     check_free_space(out, densify_bytes(photos, len(targets), cfg.downscaled))
     holdout = tuple(scene.frames[i].name for i in tcfg.holdout)
     with atomic_dir(out, cfg.overwrite) as tmp:
-        trained = tmp / "run" if work is None else work / "run"
-        run = train(scene, trained, tcfg, resume=(trained / CONFIG).is_file(), overwrite=True)
+        run = train(scene, tmp / "run", tcfg) if work is None else train_resumable(work / "runs", scene, tcfg)
         # points for the written scene (training and synthesis are the same with or without them) and the fits
         written = _with_points(scene, photos, holdout) if cfg.triangulate else scene
         planned, views, made_from = _views(run, scene, written, targets, cfg, tcfg.holdout)
@@ -150,10 +149,11 @@ def _densify(scene: Scene, out: Path, cfg: DensifyConfig, work: Path | None) -> 
             path=tmp / "cameras.png",
             title=f"{len(scene)} input views (blue) + {len(views.frames)} synthesized (orange)",
         )
-        if cfg.keep_run and trained != tmp / "run":
-            shutil.move(trained, tmp / "run")  # a rename beside --out: no second copy of the checkpoint
-        elif not cfg.keep_run and trained == tmp / "run":
-            shutil.rmtree(trained)
+        assert run.path is not None
+        if cfg.keep_run and run.path != tmp / "run":
+            shutil.move(run.path, tmp / "run")  # a rename beside --out: no second copy of the checkpoint
+        elif not cfg.keep_run and run.path == tmp / "run":
+            shutil.rmtree(run.path)
     return dense
 
 

@@ -287,8 +287,8 @@ def work_dir(
         shutil.rmtree(path)
     elif resume and path.exists():
         log.info("resuming from %s", path)
-    elif resume:
-        log.warning("%s: no stopped run to resume (nothing in %s); starting from the beginning", out, path)
+    elif resume:  # not a warning: a batch resumes every unit, most of them never stopped
+        log.info("%s: no stopped run to resume (nothing in %s); starting from the beginning", out, path)
     path.mkdir(parents=True, exist_ok=True)
     write_marker(path)
     _working.append(path)

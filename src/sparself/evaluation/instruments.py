@@ -15,7 +15,6 @@ import numpy as np
 from sparself.capture.images import load_image, resize_image
 from sparself.capture.scene import Frame, Scene
 from sparself.core import metrics
-from sparself.core.content import digest
 from sparself.core.errors import ConfigError, InputError
 from sparself.core.outputs import current_work
 from sparself.evaluation.config import EvalConfig
@@ -23,9 +22,8 @@ from sparself.model import default_weights
 from sparself.recon import Renderer, backend, get_reconstructor
 from sparself.recon.pool import FitPool, Fitter, side_by_side
 from sparself.synthesis.baselines import BASELINES
-from sparself.synthesis.run import CONFIG
 from sparself.synthesis.synthesize import Synthesized, densify_scene, synthesize_with_confidence
-from sparself.synthesis.train import train
+from sparself.synthesis.train import train, train_resumable
 
 # synthesize(scene, targets) -> (T, H, W, 3), or Synthesized (images + per-pixel confidence)
 SynthFn = Callable[[Scene, list], "np.ndarray | Synthesized"]
@@ -98,9 +96,8 @@ def network_factory(cfg: EvalConfig) -> Callable[[Scene, int], SynthFn]:
         if work is None:
             with tempfile.TemporaryDirectory(prefix="sparself-eval-run-") as tmp:
                 run = train(scene, Path(tmp) / "run", tcfg, progress=cfg.progress)
-        else:  # kept for a stopped evaluation to resume from, under what the network is trained on and how
-            folder = work / "runs" / digest((scene, tcfg))[:20]
-            run = train(scene, folder, tcfg, resume=(folder / CONFIG).is_file(), overwrite=True, progress=cfg.progress)
+        else:  # kept for a stopped evaluation to resume from
+            run = train_resumable(work / "runs", scene, tcfg, progress=cfg.progress)
         return lambda sc, targets, **_: synthesize_with_confidence(run, sc, targets)
 
     return make

@@ -39,6 +39,7 @@ from tqdm.auto import tqdm
 
 from sparself.capture import io as sio
 from sparself.capture.scene import Scene, one_size
+from sparself.core.content import digest
 from sparself.core.errors import ConfigError, InputError
 from sparself.core.geometry import inverse_depth_planes
 from sparself.core.outputs import Input, atomic_file, check_not_input, check_output_dir, scene_inputs, write_marker
@@ -445,6 +446,15 @@ def train(
     _truncate_log(out / LOG, start)
     _fit(s, out, cfg, meta, start, progress)
     return Run(s.model, cfg, meta, out)
+
+
+def train_resumable(parent: Path, scene: Scene, cfg: TrainConfig, progress: bool | None = None) -> Run:
+    """:func:`train` in a run folder under ``parent`` named by a digest of ``scene`` and ``cfg`` (less the options a
+    resumed run may change, such as the epochs): a run stopped there is continued from its checkpoint, and one
+    with other options or another scene trains in a folder of its own."""
+    same = {k: v for k, v in cfg.to_json().items() if k not in _RESUME_FREE}
+    out = Path(parent) / digest((scene, same))[:20]
+    return train(scene, out, cfg, resume=(out / CONFIG).is_file(), overwrite=True, progress=progress)
 
 
 def _check_resume_scene(out: Path, meta: RunMeta, scene: Scene, cfg: TrainConfig) -> None:
