@@ -62,6 +62,7 @@ def test_fits_inside_a_work_folder_are_fitted_once_per_reconstructor_settings_an
         fitter.with_seed(1).many([a])
         fitter.many([a], seeds=[2])
         Fitter("mpi")(a)
+        Fitter("3dgs", {"steps": 30, "seed": 0, "progress": True}).many([a])  # a progress bar changes no fit
         assert len(fitted) == 6 and len(list((work / "fits").glob("*.pkl"))) == 6
     fitter.many([a])  # outside a work folder: nothing kept, everything fitted
     assert len(fitted) == 7

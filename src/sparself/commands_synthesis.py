@@ -128,7 +128,7 @@ def add_densify(sub) -> None:
         action="store_true",
         help="continue a run that was stopped (Ctrl-C, kill, an error) from the steps it finished: its poses, "
         "its network's last checkpoint and its self-check's fits, kept in .OUT.sparself-work beside --out "
-        "(the same result as a run never stopped; the options must be the same)",
+        "(the same result as a run never stopped; a changed option does the steps it changes again)",
     )
     export_options(p)
     add_common_options(p)

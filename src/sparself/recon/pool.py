@@ -174,7 +174,7 @@ class FitStore:
         """Scene k fitted by ``fitters[k]``, in order: the fits found here read back, the others fitted (by
         ``pool``) and kept here as they come (a renderer that cannot be pickled is fitted again next time)."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        paths = [self.folder / f"{digest((f.name, f.settings, sc))}.pkl" for f, sc in zip(fitters, scenes, strict=True)]
+        paths = [self.folder / f"{_key(f, sc)}.pkl" for f, sc in zip(fitters, scenes, strict=True)]
         found: list[Renderer | None] = [kept(p) for p in paths]
         todo = [k for k, r in enumerate(found) if r is None]
         if len(todo) < len(found):
@@ -183,3 +183,9 @@ class FitStore:
         for k, r in new.items():
             keep(paths[k], r)
         return [new[k] if r is None else r for k, r in enumerate(found)]
+
+
+def _key(fitter: Fitter, scene: Scene) -> str:
+    """What a fit is kept under: its reconstructor, its settings (less the progress bar, which changes nothing
+    fitted) and its scene."""
+    return digest((fitter.name, {k: v for k, v in fitter.settings.items() if k != "progress"}, scene))
