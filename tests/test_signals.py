@@ -163,6 +163,42 @@ def test_sigterm_on_a_colmap_scene_is_ctrl_c_in_densify(colmap_scene, tmp_path):
     assert listing(res) == []
 
 
+def test_sigterm_during_evaluate_keeps_its_checkpoints_and_the_printed_command_continues(scene, tmp_path):
+    """``evaluate`` imports pycolmap (for its versions), whose native handler must not take SIGTERM over."""
+    need("evaluate")
+    res = tmp_path / "res"
+    res.mkdir()
+    argv = ["evaluate", scene, "--out", res / "out", "--quick", "--size", "32", "--inputs", "5", "--recon", "mpi"]
+    argv += [
+        "--epochs",
+        "500",
+        "--seeds",
+        "1",
+        "--crop",
+        "16",
+        "--backbone-size",
+        "32",
+        "--device",
+        "cpu",
+        "--no-lpips",
+    ]
+    proc = subprocess.Popen(cli(*argv), env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for(proc, lambda: list(res.glob(".out.sparself-work/runs/*/checkpoint.pt")), "the first checkpoint")
+    line = _interrupted(proc, signal.SIGTERM)
+    work = res / ".out.sparself-work"
+    hint = (
+        f"sparself evaluate: interrupted by SIGTERM; nothing was written to {res / 'out'}; the finished steps are "
+        f"kept in {work}; continue with: "
+    )
+    assert line.startswith(hint), line
+    assert listing(res) == [work.name]
+    resume = shlex.split(line[len(hint) :])
+    resume[resume.index("500")] = "6"  # the printed command, to a nearer end to keep the test short
+    done = subprocess.run(cli(*resume[1:], "-q"), env=ENV, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert listing(res) == ["out"] and (res / "out" / "results.json").is_file()
+
+
 def test_sigterm_on_a_colmap_scene_is_ctrl_c_in_train(colmap_scene, tmp_path):
     run = tmp_path / "run"
     argv = ["train", colmap_scene, "--out", run, "--epochs", "500", *TRAIN]

@@ -16,6 +16,7 @@ from sparself.capture.images import load_image, resize_image
 from sparself.capture.scene import Frame, Scene
 from sparself.core import metrics
 from sparself.core.errors import ConfigError, InputError
+from sparself.core.interrupts import import_native
 from sparself.core.outputs import current_work
 from sparself.evaluation.config import EvalConfig
 from sparself.model import default_weights
@@ -59,7 +60,7 @@ def versions() -> dict:
     out: dict[str, str | None] = {"python": platform.python_version(), "platform": platform.platform()}
     for name in ("sparself", "torch", "numpy", "pycolmap", "kornia", "cv2", "skimage"):
         try:
-            mod = __import__(name)
+            mod = import_native(name)  # pycolmap's import would otherwise turn SIGTERM into a native abort
             out[name] = getattr(mod, "__version__", None)
         except Exception:
             out[name] = None
