@@ -410,7 +410,7 @@ def test_evaluate_bars_only_on_a_terminal_and_never_with_q(tmp_path, monkeypatch
 
     seen = {}
 
-    def fake(paths, out, cfg, overwrite=False):
+    def fake(paths, out, cfg, overwrite=False, resume=False):
         seen["progress"] = cfg.progress
         return Results(scenes=[SceneResult("x", status="ok")])
 

@@ -83,7 +83,9 @@ def test_evaluate_options_reach_the_network_config(monkeypatch):
 
     seen = {}
     monkeypatch.setattr(
-        evaluate, "evaluate", lambda paths, out, cfg, overwrite=False: seen.setdefault("cfg", cfg) and Results()
+        evaluate,
+        "evaluate",
+        lambda paths, out, cfg, overwrite=False, resume=False: seen.setdefault("cfg", cfg) and Results(),
     )
     cli.main(
         [
