@@ -45,8 +45,8 @@ def _line(n: int = 12):
 def _densify(tmp_path, monkeypatch, views, check=MPI, resume=False):
     """densify with the network replaced by ``views(scene, targets) -> images`` (no training)."""
 
-    def fake_train(scene, path, cfg, **_):
-        path.mkdir(parents=True, exist_ok=True)
+    def fake_train(scene, path, cfg):
+        path.mkdir(parents=True)
         return None
 
     def fake_synth(run, scene, targets):
@@ -966,9 +966,7 @@ def test_densify_fits_a_scene_of_real_photos_once_per_check(monkeypatch):
 
     fitted = []
     monkeypatch.setattr(
-        selfcheck,
-        "check_fits",
-        lambda cfg, pool=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes],
+        selfcheck, "check_fits", lambda cfg, pool=None: lambda scenes: [fitted.append(sc) or object() for sc in scenes]
     )
     monkeypatch.setattr(selfcheck, "self_check", lambda inputs, *a: [a[5]([inputs.subset(range(3))])[0] for _ in "ab"])
     scene = _line(6)

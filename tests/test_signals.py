@@ -169,19 +169,7 @@ def test_sigterm_during_evaluate_keeps_its_checkpoints_and_the_printed_command_c
     res = tmp_path / "res"
     res.mkdir()
     argv = ["evaluate", scene, "--out", res / "out", "--quick", "--size", "32", "--inputs", "5", "--recon", "mpi"]
-    argv += [
-        "--epochs",
-        "500",
-        "--seeds",
-        "1",
-        "--crop",
-        "16",
-        "--backbone-size",
-        "32",
-        "--device",
-        "cpu",
-        "--no-lpips",
-    ]
+    argv += "--epochs 500 --seeds 1 --crop 16 --backbone-size 32 --device cpu --no-lpips".split()
     proc = subprocess.Popen(cli(*argv), env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_for(proc, lambda: list(res.glob(".out.sparself-work/runs/*/checkpoint.pt")), "the first checkpoint")
     line = _interrupted(proc, signal.SIGTERM)
