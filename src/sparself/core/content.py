@@ -6,14 +6,15 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
 import pickle
-import tempfile
 from dataclasses import fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from sparself.core.errors import OutputError
+from sparself.core.outputs import atomic_file
 
 log = logging.getLogger(__name__)
 
@@ -69,18 +70,14 @@ def _feed(h, v) -> None:
 
 
 def keep(path: Path, value: Any) -> bool:
-    """Pickle ``value`` to ``path``, whole or not at all (a temporary sibling renamed into place); False, with the
-    reason at debug level, when it cannot be pickled or written."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    """Pickle ``value`` to ``path``, whole or not at all (:func:`~sparself.core.outputs.atomic_file`); False, with
+    the reason at debug level, when it cannot be pickled or written."""
     try:
-        with os.fdopen(fd, "wb") as f:
+        with atomic_file(Path(path)) as tmp, open(tmp, "wb") as f:
             pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
         return True
-    except (OSError, pickle.PicklingError, TypeError, AttributeError) as e:
+    except (OSError, OutputError, pickle.PicklingError, TypeError, AttributeError) as e:
         log.debug("%s: not kept (%s)", path, e)
-        Path(tmp).unlink(missing_ok=True)
         return False
 
 
