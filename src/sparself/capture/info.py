@@ -43,7 +43,8 @@ def scene_info(scene: Scene) -> dict:
     """A JSON-ready summary of a scene (no image is decoded).
 
     Keys: views (real_views + synthesized_views), sizes, cameras (model, size, fx, fy, cx, cy, params,
-    fov_deg), centers (min, max, extent), scale, depth_bounds + depth_bounds_from,
+    fov_deg, and undistorted_from: the files' lens model where its photos are read undistorted),
+    centers (min, max, extent), scale, depth_bounds + depth_bounds_from,
     step (median distance and rotation between consecutive views).
     """
     cams = {}
@@ -61,6 +62,9 @@ def scene_info(scene: Scene) -> dict:
             "fov_deg": [round(fh, 4), round(fv, 4)],
             "views": sum(1 for f in scene.frames if f.camera_id == cid),
         }
+        if cid in scene.undistort:  # the files' camera, whose photos every command reads undistorted
+            lens = scene.undistort[cid].lens
+            cams[str(cid)]["undistorted_from"] = {"model": lens.model, "params": list(lens.params)}
     centers = scene.centers()
     src = depth_bounds_origin(scene)
     synth = synthesized_views(scene)
@@ -134,6 +138,12 @@ def _camera_lines(cams: dict) -> list[str]:
             f"fx={c['fx']:.2f} fy={c['fy']:.2f} cx={c['cx']:.2f} cy={c['cy']:.2f} ({c['views']} views)"
         )
         lines.append(f"  field of view: {c['fov_deg'][0]:.2f} x {c['fov_deg'][1]:.2f} deg (horizontal x vertical)")
+        if "undistorted_from" in c:
+            lens = c["undistorted_from"]
+            lines.append(
+                f"  lens:          {lens['model']} ({', '.join(f'{p:.4g}' for p in lens['params'])}); "
+                "its photos are read undistorted, as this pinhole camera"
+            )
     return lines
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from sparself.capture.images import load_image, read_mask, resize_image
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose, fov_deg, intrinsics_matrix
+from sparself.core.lens import distortion_shift, pinhole_matrix, undistort_image, undistort_points
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +109,18 @@ class Camera:
         cy = height / 2.0 if cy is None else cy
         return cls("PINHOLE", int(width), int(height), (fx, fy, cx, cy))
 
+    @property
+    def lens(self) -> tuple[np.ndarray, bool] | None:
+        """OpenCV's distortion coefficients of the model and whether it is a fisheye model
+        (:mod:`sparself.core.lens`), or None for a pinhole model."""
+        names = _PINHOLE_LIKE[self.model]
+        if self.model in ("SIMPLE_PINHOLE", "PINHOLE"):
+            return None
+        fisheye = self.model.endswith("FISHEYE")
+        order = ("k1", "k2", "k3", "k4") if fisheye else ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+        given = {("k1" if n == "k" else n): p for n, p in zip(names, self.params)}
+        return np.array([given.get(n, 0.0) for n in order]), fisheye
+
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera for images resampled to (width, height): focal and centre scale per axis.
 
@@ -116,6 +129,35 @@ class Camera:
         """
         sx, sy = width / self.width, height / self.height
         return Camera.pinhole(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
+
+
+@dataclass(frozen=True)
+class Undistortion:
+    """One camera's photos as sparself reads them: taken through ``lens`` (a model with distortion), seen as
+    the pinhole camera ``pinhole`` of the same size (:func:`undistorted`)."""
+
+    lens: Camera
+    pinhole: Camera
+
+    def _model(self) -> tuple[np.ndarray, np.ndarray, bool]:
+        D, fisheye = self.lens.lens or (np.zeros(4), False)
+        return self.lens.K, D, fisheye
+
+    def image(self, img: np.ndarray, path: Path | None = None) -> np.ndarray:
+        """(H, W, C) or (H, W) photo at the lens camera's size -> its pinhole image, same size."""
+        if (img.shape[1], img.shape[0]) != (self.lens.width, self.lens.height):
+            raise InputError(
+                f"{path or 'image'}: image is {img.shape[1]}x{img.shape[0]} but its camera says "
+                f"{self.lens.width}x{self.lens.height}"
+            )
+        K, D, fisheye = self._model()
+        return undistort_image(img, K, D, fisheye, self.pinhole.K)
+
+    def points(self, xy: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """(M, 2) keypoints in a photo of size (W, H) -> the same rays in its pinhole image of that size."""
+        s = np.array([self.lens.width / size[0], self.lens.height / size[1]])
+        K, D, fisheye = self._model()
+        return undistort_points(np.asarray(xy, np.float64) * s, K, D, fisheye, self.pinhole.K) / s
 
 
 @dataclass
@@ -183,6 +225,8 @@ class Scene:
     source_format: the format the scene was read from ("" for a scene made in memory).
     unregistered: photos of the capture without a pose (a COLMAP model's images that SfM did not register).
     frame_bounds: per-view (near, far) by frame name, where the files give them (LLFF).
+    undistort: cameras (by id) whose photos are undistorted when loaded (:func:`undistorted`); ``cameras``
+               then holds their pinhole cameras.
     """
 
     cameras: dict[int, Camera]
@@ -195,6 +239,7 @@ class Scene:
     source_format: SourceFormat = ""
     unregistered: tuple[str, ...] = ()
     frame_bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    undistort: dict[int, Undistortion] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for f in self.frames:
@@ -258,7 +303,12 @@ class Scene:
         if f.path is None:
             raise InputError(f"frame {f.name} has no image (a planned pose that was not synthesized)")
         cam = self.camera(i)
-        img = load_image(f.path, size=size)
+        lens = self.undistort.get(f.camera_id)
+        img = load_image(f.path, size=None if lens else size)
+        if lens is not None:  # undistorted at the photo's own size, before any resize
+            img = lens.image(img, f.path)
+            if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+                img = resize_image(img, size)
         if size is None and (img.shape[1], img.shape[0]) != (cam.width, cam.height):
             raise InputError(
                 f"{f.path}: image is {img.shape[1]}x{img.shape[0]} but its camera says {cam.width}x{cam.height}"
@@ -308,7 +358,11 @@ class Scene:
         f = self.frames[i]
         if f.confidence is not None:
             return np.asarray(f.confidence, np.float32)
-        return None if f.mask is None else np.divide(read_mask(f.mask), 255.0, dtype=np.float32)
+        if f.mask is None:
+            return None
+        conf = np.divide(read_mask(f.mask), 255.0, dtype=np.float32)
+        lens = self.undistort.get(f.camera_id)
+        return conf if lens is None else np.clip(lens.image(conf, f.mask), 0.0, 1.0)
 
     def pixel_weight(self, i: int) -> np.ndarray | None:
         """Frame i's per-pixel loss weight (H, W) at its camera's size: its ``weight`` x its confidence map
@@ -365,6 +419,66 @@ def one_size(scene: Scene) -> Scene:
         scene,
         cameras={cid: c if (c.width, c.height) == (w, h) else c.resized(w, h) for cid, c in scene.cameras.items()},
     )
+
+
+# a pinhole reading of a camera errs by at most this (px) is kept as it is: undistorting would only resample
+MAX_LENS_SHIFT = 0.25
+# an undistortion that would crop the photos' view by more than this is not trusted: a distortion so strong that
+# no edge pixel survives is what SfM fits to a few views' keypoints near the centre, not what lenses do
+MAX_LENS_CROP = 0.15
+
+
+def undistorted(scene: Scene) -> Scene:
+    """The scene seen through pinhole cameras, which is what sparself's geometry assumes.
+
+    A camera whose distortion moves some pixel by more than ``MAX_LENS_SHIFT`` is replaced by the pinhole
+    camera of its undistorted photos (:func:`sparself.core.lens.pinhole_matrix`: same size and principal
+    point, the widest view without blank corners); its frames' photos are undistorted when loaded and their
+    keypoints move with them. Poses and points are unchanged. Other cameras are kept as they are, and so is one
+    whose pinhole view would lose more than ``MAX_LENS_CROP`` of its focal length to the crop (with a warning)."""
+    lenses = {}
+    for cid, cam in scene.cameras.items():
+        if cam.lens is None or cid in scene.undistort:
+            continue
+        D, fisheye = cam.lens
+        shift = distortion_shift(cam.K, D, fisheye, (cam.width, cam.height))
+        if shift <= MAX_LENS_SHIFT:
+            continue
+        K = pinhole_matrix(cam.K, D, fisheye, (cam.width, cam.height))
+        if K[0, 0] > cam.fx * (1 + MAX_LENS_CROP):
+            log.warning(
+                "%s: camera %d (%s) would bend pixels by up to %.0f px and undistorting it would crop the view "
+                "to %.0f %%, which no common lens does; it is read as a pinhole camera (the distortion is "
+                "probably poorly determined by these photos)",
+                scene.source or "scene",
+                cid,
+                cam.model,
+                shift,
+                100 * cam.fx / K[0, 0],
+            )
+            continue
+        lenses[cid] = Undistortion(cam, Camera("PINHOLE", cam.width, cam.height, (K[0, 0], K[1, 1], K[0, 2], K[1, 2])))
+        log.info(
+            "%s: camera %d (%s, %dx%d) bends pixels by up to %.1f px; its photos are undistorted to a pinhole "
+            "camera (focal %.1f -> %.1f px)",
+            scene.source or "scene",
+            cid,
+            cam.model,
+            cam.width,
+            cam.height,
+            shift,
+            cam.fx,
+            K[0, 0],
+        )
+    if not lenses:
+        return scene
+    cam_of = {f.name: f.camera_id for f in scene.frames}
+    obs = {
+        name: replace(o, xy=lenses[cam_of[name]].points(o.xy, o.size)) if cam_of.get(name) in lenses else o
+        for name, o in scene.observations.items()
+    }
+    cameras = {cid: lenses[cid].pinhole if cid in lenses else cam for cid, cam in scene.cameras.items()}
+    return replace(scene, cameras=cameras, observations=obs, undistort={**scene.undistort, **lenses})
 
 
 def preloaded(scene: Scene) -> Scene:

@@ -25,7 +25,7 @@ from sparself.capture.images import image_size_of, list_images
 from sparself.capture.io.colmap import scene_from_reconstruction
 from sparself.capture.photos import exif_focal_px, validate_images
 from sparself.capture.posecheck import ImageStats, PoseCheck, Suspect, camera_warnings, check_poses
-from sparself.capture.scene import Scene
+from sparself.capture.scene import Scene, undistorted
 from sparself.capture.sfm_images import WorkImages, work_images
 from sparself.core.errors import InputError, RegistrationError
 from sparself.core.interrupts import import_native
@@ -274,7 +274,7 @@ def recover_poses(
         if check.suspects:
             best, check, repair = _repair(best, check, db, images, work, cfg, names)
         timings["check"] = time.perf_counter() - t0
-    scene = scene_from_reconstruction(best, folder, source=folder)
+    scene = undistorted(scene_from_reconstruction(best, folder, source=folder))
     return scene, _report(scene, names, recs, best, check, repair, timings, paths)
 
 
@@ -296,9 +296,10 @@ def _report(
     folder = paths[0].parent
     registered = [f.name for f in scene.frames]
     unregistered = [n for n in names if n not in set(registered)]
-    cam_notes = [
-        w for cam in scene.cameras.values() for w in camera_warnings(cam, exif_focal_px(paths, cam.width, cam.height))
+    recovered = [lens.lens for lens in scene.undistort.values()] + [
+        cam for cid, cam in scene.cameras.items() if cid not in scene.undistort
     ]
+    cam_notes = [w for cam in recovered for w in camera_warnings(cam, exif_focal_px(paths, cam.width, cam.height))]
     report = SfmReport(
         num_images=len(names),
         registered=registered,

@@ -32,7 +32,7 @@ from sparself.capture.io.dense_photos import DensePhotos, dense_photos
 from sparself.capture.io.llff import read_llff, write_llff
 from sparself.capture.io.middlebury import find_par_file, read_middlebury, write_middlebury
 from sparself.capture.io.nerfstudio import read_nerfstudio, write_nerfstudio
-from sparself.capture.scene import Frame, Scene
+from sparself.capture.scene import Frame, Scene, undistorted
 from sparself.core.errors import InputError
 from sparself.core.names import check_names
 from sparself.core.outputs import atomic_dir, scene_inputs, write_marker
@@ -103,7 +103,8 @@ def read_scene(path: Path, images: Path | None = None) -> Scene:
     images: images folder, for COLMAP and LLFF (default ``images/`` beside the model / pose file).
     Frames come sorted by image name with ``index`` 0..N-1. A dense scene's masks (transforms.json's
     ``mask_path``; ``masks/`` beside ``images/`` for COLMAP and LLFF) come back as the frames' ``mask``,
-    which :meth:`Scene.pixel_weight` reads as confidence.
+    which :meth:`Scene.pixel_weight` reads as confidence. Cameras with lens distortion come back as pinhole
+    cameras whose photos are undistorted when loaded (:func:`~sparself.capture.scene.undistorted`).
     """
     path = Path(path)
     fmt = detect_format(path)
@@ -115,6 +116,7 @@ def read_scene(path: Path, images: Path | None = None) -> Scene:
         scene = read_nerfstudio(path)
     else:
         return read_middlebury(path)
+    scene = undistorted(scene)
     synthetic = _dense.read_synthetic_names(_scene_folder(path))
     return _dense.mark_synthetic(scene, synthetic) if synthetic else scene
 
@@ -148,6 +150,7 @@ def _write_image(frame: Frame, scene: Scene, i: int, dst: Path, link: bool) -> N
         and image_size_of(frame.path) == (cam.width, cam.height)
         and _same_format(frame.path, dst)
         and not needs_conversion(frame.path)
+        and frame.camera_id not in scene.undistort
     ):
         if link:
             os.symlink(Path(frame.path).resolve(), dst)
