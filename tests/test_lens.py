@@ -173,4 +173,4 @@ def test_distortion_that_would_crop_most_of_the_view_is_not_trusted(tmp_path, ca
     _distorted_capture(tmp_path / "in", cam)
     scene = read_scene(tmp_path / "in")
     assert scene.cameras[1] == cam and not scene.undistort
-    assert "read as a pinhole camera" in caplog.text
+    assert "read as pinhole cameras" in caplog.text

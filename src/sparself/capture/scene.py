@@ -14,7 +14,7 @@ from typing import Iterable, Literal, Sequence
 
 import numpy as np
 
-from sparself.capture.images import load_image, read_mask, resize_image
+from sparself.capture.images import load_image, read_mask, resize_image, some
 from sparself.core.errors import InputError
 from sparself.core.geometry import Pose, fov_deg, intrinsics_matrix
 from sparself.core.lens import distortion_shift, pinhole_matrix, undistort_image, undistort_points
@@ -428,6 +428,19 @@ MAX_LENS_SHIFT = 0.25
 MAX_LENS_CROP = 0.15
 
 
+def _pinhole_view(cam: Camera) -> tuple[Camera | None, float]:
+    """(the pinhole camera of ``cam``'s undistorted photos, or None where a pinhole reading errs by at most
+    ``MAX_LENS_SHIFT``; the farthest the distortion moves a pixel, px)."""
+    if cam.lens is None:
+        return None, 0.0
+    D, fisheye = cam.lens
+    shift = distortion_shift(cam.K, D, fisheye, (cam.width, cam.height))
+    if shift <= MAX_LENS_SHIFT:
+        return None, shift
+    K = pinhole_matrix(cam.K, D, fisheye, (cam.width, cam.height))
+    return Camera("PINHOLE", cam.width, cam.height, (K[0, 0], K[1, 1], K[0, 2], K[1, 2])), shift
+
+
 def undistorted(scene: Scene) -> Scene:
     """The scene seen through pinhole cameras, which is what sparself's geometry assumes.
 
@@ -436,40 +449,19 @@ def undistorted(scene: Scene) -> Scene:
     point, the widest view without blank corners); its frames' photos are undistorted when loaded and their
     keypoints move with them. Poses and points are unchanged. Other cameras are kept as they are, and so is one
     whose pinhole view would lose more than ``MAX_LENS_CROP`` of its focal length to the crop (with a warning)."""
-    lenses = {}
+    lenses: dict[int, Undistortion] = {}
+    shifts: list[float] = []
+    untrusted: list[tuple[int, float]] = []
     for cid, cam in scene.cameras.items():
-        if cam.lens is None or cid in scene.undistort:
+        pin, shift = _pinhole_view(cam) if cid not in scene.undistort else (None, 0.0)
+        if pin is None:
             continue
-        D, fisheye = cam.lens
-        shift = distortion_shift(cam.K, D, fisheye, (cam.width, cam.height))
-        if shift <= MAX_LENS_SHIFT:
+        if pin.fx > cam.fx * (1 + MAX_LENS_CROP):
+            untrusted.append((cid, cam.fx / pin.fx))
             continue
-        K = pinhole_matrix(cam.K, D, fisheye, (cam.width, cam.height))
-        if K[0, 0] > cam.fx * (1 + MAX_LENS_CROP):
-            log.warning(
-                "%s: camera %d (%s) would bend pixels by up to %.0f px and undistorting it would crop the view "
-                "to %.0f %%, which no common lens does; it is read as a pinhole camera (the distortion is "
-                "probably poorly determined by these photos)",
-                scene.source or "scene",
-                cid,
-                cam.model,
-                shift,
-                100 * cam.fx / K[0, 0],
-            )
-            continue
-        lenses[cid] = Undistortion(cam, Camera("PINHOLE", cam.width, cam.height, (K[0, 0], K[1, 1], K[0, 2], K[1, 2])))
-        log.info(
-            "%s: camera %d (%s, %dx%d) bends pixels by up to %.1f px; its photos are undistorted to a pinhole "
-            "camera (focal %.1f -> %.1f px)",
-            scene.source or "scene",
-            cid,
-            cam.model,
-            cam.width,
-            cam.height,
-            shift,
-            cam.fx,
-            K[0, 0],
-        )
+        lenses[cid] = Undistortion(cam, pin)
+        shifts.append(shift)
+    _say_lenses(scene, lenses, shifts, untrusted)
     if not lenses:
         return scene
     cam_of = {f.name: f.camera_id for f in scene.frames}
@@ -479,6 +471,37 @@ def undistorted(scene: Scene) -> Scene:
     }
     cameras = {cid: lenses[cid].pinhole if cid in lenses else cam for cid, cam in scene.cameras.items()}
     return replace(scene, cameras=cameras, observations=obs, undistort={**scene.undistort, **lenses})
+
+
+def _say_lenses(
+    scene: Scene, lenses: dict[int, Undistortion], shifts: list[float], untrusted: list[tuple[int, float]]
+) -> None:
+    """One line for the cameras undistorted, one warning for those read as pinhole against their files."""
+    where = scene.source or "scene"
+    if lenses:
+        models = ", ".join(sorted({u.lens.model for u in lenses.values()}))
+        before, after = [u.lens.fx for u in lenses.values()], [u.pinhole.fx for u in lenses.values()]
+        log.info(
+            "%s: %d camera(s) (%s) bend pixels by up to %.1f px; their photos are read undistorted, as pinhole "
+            "cameras (focal %.1f -> %.1f px%s)",
+            where,
+            len(lenses),
+            models,
+            max(shifts),
+            before[0],
+            after[0],
+            "" if len(lenses) == 1 else " for the first",
+        )
+    if untrusted:
+        log.warning(
+            "%s: undistorting %d camera(s) (%s) would crop their view to %.0f %% of its focal length, which no "
+            "common lens does; they are read as pinhole cameras (their distortion is probably poorly determined "
+            "by these photos)",
+            where,
+            len(untrusted),
+            some([str(cid) for cid, _ in untrusted]),
+            100 * min(r for _, r in untrusted),
+        )
 
 
 def preloaded(scene: Scene) -> Scene:
