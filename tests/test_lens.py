@@ -3,12 +3,15 @@ models written out by hand."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from sparself.capture.images import save_image
 from sparself.capture.info import scene_info
-from sparself.capture.io import read_scene, write_colmap, write_scene
+from sparself.capture.io import read_nerfstudio, read_scene, write_colmap, write_scene
+from sparself.capture.io.nerfstudio import transforms_dict
 from sparself.capture.scene import Camera, Frame, Observations, Scene
 from sparself.core.geometry import Pose, rotmat_to_quat
 from sparself.core.lens import pinhole_matrix, undistort_image, undistort_points
@@ -174,3 +177,20 @@ def test_distortion_that_would_crop_most_of_the_view_is_not_trusted(tmp_path, ca
     scene = read_scene(tmp_path / "in")
     assert scene.cameras[1] == cam and not scene.undistort
     assert "read as pinhole cameras" in caplog.text
+
+
+def test_transforms_json_keeps_the_r6_radial_term(tmp_path):
+    """nerfstudio's k3 multiplies r^6, as OpenCV's full model's does: read and written, it is kept."""
+    (tmp_path / "images").mkdir()
+    save_image(tmp_path / "images" / "a.png", np.zeros((H, W, 3)))
+    meta = {"fl_x": 50.0, "fl_y": 50.0, "cx": 32.0, "cy": 24.0, "w": W, "h": H, "camera_model": "OPENCV"}
+    meta |= {"k1": -0.1, "k2": 0.02, "k3": -0.004, "p1": 0.001, "p2": 0.0}
+    meta["frames"] = [{"file_path": "images/a.png", "transform_matrix": np.eye(4).tolist()}]
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    cam = read_nerfstudio(tmp_path).cameras[1]
+    assert cam.model == "FULL_OPENCV" and cam.params[4:9] == (-0.1, 0.02, 0.001, 0.0, -0.004)
+    at_origin = Pose(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))
+    written = transforms_dict(Scene({1: cam}, [Frame("a.png", at_origin, 1, 0.0, tmp_path / "images/a.png")]))
+    assert {k: written[k] for k in ("k1", "k2", "k3", "p1", "p2")} == {
+        k: meta[k] for k in ("k1", "k2", "k3", "p1", "p2")
+    }

@@ -65,10 +65,13 @@ def _read_camera(d: dict, img: Path | None, where: str) -> Camera:
         return Camera(model, w, h, (fx, fy, cx, cy, dist["k1"], dist["k2"], dist["k3"], dist["k4"]))
     if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         raise InputError(f"{where}: camera_model {model!r} is not supported (pinhole / OpenCV models only)")
-    if any(dist[k] for k in ("k1", "k2", "p1", "p2")):
-        if dist["k3"] or dist["k4"]:
-            log.warning("%s: distortion k3/k4 dropped (OPENCV model keeps k1 k2 p1 p2)", where)
-        return Camera("OPENCV", w, h, (fx, fy, cx, cy, dist["k1"], dist["k2"], dist["p1"], dist["p2"]))
+    if any(dist[k] for k in ("k1", "k2", "k3", "p1", "p2")):
+        if dist["k4"]:
+            log.warning("%s: distortion k4 dropped (an r^8 term that OpenCV's camera models lack)", where)
+        k1, k2, p1, p2, k3 = (dist[k] for k in ("k1", "k2", "p1", "p2", "k3"))
+        if k3:  # OpenCV's k3 is the r^6 term, as nerfstudio's
+            return Camera("FULL_OPENCV", w, h, (fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0))
+        return Camera("OPENCV", w, h, (fx, fy, cx, cy, k1, k2, p1, p2))
     return Camera.pinhole(w, h, fx, fy, cx, cy)
 
 
@@ -186,8 +189,11 @@ def _intrinsics(cam: Camera) -> dict:
         d.update(camera_model="OPENCV", k1=p[3], k2=p[4])
     elif cam.model == "OPENCV":
         d.update(camera_model="OPENCV", k1=p[4], k2=p[5], p1=p[6], p2=p[7])
-    elif cam.model == "OPENCV_FISHEYE":
-        d.update(camera_model="OPENCV_FISHEYE", k1=p[4], k2=p[5], k3=p[6], k4=p[7])
+    elif cam.model == "FULL_OPENCV" and not any(p[9:]):  # nerfstudio's k3 is OpenCV's: an r^6 numerator term
+        d.update(camera_model="OPENCV", k1=p[4], k2=p[5], p1=p[6], p2=p[7], k3=p[8])
+    elif cam.model.endswith("FISHEYE") and cam.lens is not None:
+        D = cam.lens[0]
+        d.update(camera_model="OPENCV_FISHEYE", k1=D[0], k2=D[1], k3=D[2], k4=D[3])
     else:
         log.warning("camera model %s has no nerfstudio equivalent; written as undistorted OPENCV", cam.model)
         d["camera_model"] = "OPENCV"
