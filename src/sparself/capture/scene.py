@@ -46,7 +46,8 @@ _PINHOLE_LIKE = {
 class Camera:
     """Intrinsics of one physical camera, with COLMAP's model name and parameter order.
 
-    Distortion parameters are carried through for export but ignored by the pinhole maths here.
+    The maths here are pinhole: a camera with distortion parameters is read as the pinhole camera of its
+    undistorted photos (:func:`undistorted`), unless its distortion is negligible or not trusted.
     """
 
     model: str
@@ -421,10 +422,10 @@ def one_size(scene: Scene) -> Scene:
     )
 
 
-# a pinhole reading of a camera errs by at most this (px) is kept as it is: undistorting would only resample
+# a camera whose pinhole reading errs by at most this (px) is kept as it is: undistorting would only resample
 MAX_LENS_SHIFT = 0.25
-# an undistortion that would crop the photos' view by more than this is not trusted: a distortion so strong that
-# no edge pixel survives is what SfM fits to a few views' keypoints near the centre, not what lenses do
+# an undistortion that would crop the photos' view by more than this is not trusted: a distortion that strong is
+# what SfM fits to a few views' keypoints near the centre, not what lenses do
 MAX_LENS_CROP = 0.15
 
 
