@@ -30,7 +30,7 @@ def undistort_points(xy: np.ndarray, K: np.ndarray, D: np.ndarray, fisheye: bool
 
     xy: (M, 2); K, K_new: (3, 3); D: OpenCV coefficients. -> (M, 2) float64.
     """
-    pts = (np.asarray(xy, np.float64).reshape(-1, 1, 2) - 0.5).astype(np.float64)
+    pts = np.asarray(xy, np.float64).reshape(-1, 1, 2) - 0.5
     if len(pts) == 0:
         return np.zeros((0, 2))
     D = np.asarray(D, np.float64)
