@@ -13,8 +13,9 @@ from sparself.capture.info import scene_info
 from sparself.capture.io import read_nerfstudio, read_scene, write_colmap, write_scene
 from sparself.capture.io.nerfstudio import transforms_dict
 from sparself.capture.scene import Camera, Frame, Observations, Scene
-from sparself.core.geometry import Pose, rotmat_to_quat
+from sparself.core.geometry import Pose
 from sparself.core.lens import pinhole_matrix, undistort_image, undistort_points
+from test_plan import look_at
 
 W, H = 64, 48
 
@@ -112,14 +113,6 @@ def test_undistorted_photo_is_the_pinhole_image():
     assert np.abs(photo - truth)[inner].max() > 0.1  # read as it is, the photo is not that image
 
 
-def _look_at(center: np.ndarray) -> Pose:
-    z = -center / np.linalg.norm(center)
-    x = np.cross([0.0, -1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    return Pose(rotmat_to_quat(R), -R @ center)
-
-
 def _distorted_capture(folder, cam: Camera) -> Scene:
     """A COLMAP model of 4 photos through ``cam`` with sparse points and their keypoints, written to ``folder``."""
     rng = np.random.default_rng(1)
@@ -128,7 +121,7 @@ def _distorted_capture(folder, cam: Camera) -> Scene:
     frames, obs = [], {}
     for i in range(4):
         a = 0.3 * i
-        pose = _look_at(np.array([3 * np.sin(a), 0.2, -3 * np.cos(a)]))
+        pose = look_at([3 * np.sin(a), 0.2, -3 * np.cos(a)])
         path = folder / "images" / f"{i:02d}.png"
         save_image(path, rng.random((H, W, 3)))
         frames.append(Frame(path.name, pose, 1, float(i), path))

@@ -454,7 +454,7 @@ def undistorted(scene: Scene) -> Scene:
     shifts: list[float] = []
     untrusted: list[tuple[int, float]] = []
     for cid, cam in scene.cameras.items():
-        pin, shift = _pinhole_view(cam) if cid not in scene.undistort else (None, 0.0)
+        pin, shift = _pinhole_view(cam)  # None for a camera already undistorted: it is a pinhole one
         if pin is None:
             continue
         if pin.fx > cam.fx * (1 + MAX_LENS_CROP):

@@ -64,17 +64,18 @@ def distortion_shift(K: np.ndarray, D: np.ndarray, fisheye: bool, size: tuple[in
 def pinhole_matrix(K: np.ndarray, D: np.ndarray, fisheye: bool, size: tuple[int, int]) -> np.ndarray:
     """The pinhole K (3, 3) of the undistorted image of the same size (W, H): the same principal point and
     pixel shape, and the widest view whose every pixel the distorted image covers (no blank corners, as
-    COLMAP's undistorter makes by default)."""
+    COLMAP's undistorter makes by default). Fisheye models: OpenCV's estimate of that view (balance 0), whose
+    principal point may move by a fraction of a pixel."""
     D = np.asarray(D, np.float64)
     if fisheye:
         K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(_cv(K), D, size, np.eye(3), balance=0.0)
         return _colmap(K_new)
     # the edge of the distorted image, undistorted with unit scale: the new image must fit inside it
     w, h = size
-    border = _border(w, h, K[0, 2], K[1, 2])
+    cx, cy = K[0, 2], K[1, 2]
+    border = _border(w, h, cx, cy)
     edge = undistort_points(border, K, D, False, np.eye(3))  # normalised image coordinates
     K_new = np.array(K, np.float64)
-    cx, cy = K[0, 2], K[1, 2]
     left, right = edge[np.isclose(border[:, 0], 0)], edge[np.isclose(border[:, 0], w)]
     top, bottom = edge[np.isclose(border[:, 1], 0)], edge[np.isclose(border[:, 1], h)]
     # normalised extents of the inscribed rectangle, each side kept at its own distance from the axis
