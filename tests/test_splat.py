@@ -295,6 +295,33 @@ def test_initial_gaussians_keep_the_sfm_points_and_fill_the_budget_in_the_frusta
     assert len(g) == 600 and np.std(g.means[:, 2].numpy()) > 0.5
 
 
+def test_random_starting_points_reach_past_the_sparse_points_only_where_they_are_the_bounds():
+    """far_reach moves the far bound of the random starting points when the depth bounds come from sparse points
+    (two planes here); bounds from the files and the camera-layout guess are kept as they are."""
+    from sparself.recon.common import frustum_points, start_depths
+    from sparself.recon.splat import init_gaussians
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2))
+    rng = np.random.default_rng(0)
+    depth = np.repeat([DEPTH, 2 * DEPTH], 75)
+    sc.points = np.stack([rng.uniform(-0.5, 0.5, 150), rng.uniform(-0.3, 0.3, 150), depth], 1)
+    assert start_depths(sc, 5.0) == sc.depth_bounds() == sc.bounds
+    sc.bounds = None
+    near, far = sc.depth_bounds()
+    assert near == pytest.approx(0.9 * DEPTH) and far == pytest.approx(2.2 * DEPTH)  # 1st / 99th pct, +-10 %
+    assert start_depths(sc) == (near, far) and start_depths(sc, 5.0) == pytest.approx((near, 5 * far))
+    z = frustum_points(sc, 3000, np.random.default_rng(1), far_reach=5.0)[:, 2]  # cameras at z = 0 looking along +z
+    assert z.min() >= near * 0.999 and z.max() <= 5 * far * 1.001
+    assert np.mean(z > far) > 0.5  # log-uniform: most of the range lies beyond the points
+    g = init_gaussians(sc, SplatConfig(init_points=600, far_reach=5.0), np.random.default_rng(1))
+    assert g.means[150:, 2].max() > 2 * far  # the setting reaches the fit's starting Gaussians
+    assert init_gaussians(sc, SplatConfig(init_points=600), np.random.default_rng(1)).means[:, 2].max() <= far * 1.001
+    sc.points = None  # no points: the camera-layout guess is used as it is
+    assert start_depths(sc, 5.0) == sc.depth_bounds()
+    with pytest.raises(ValueError):
+        SplatConfig(far_reach=0.5)
+
+
 def test_registry_3dgs_picks_the_cpu_path_without_cuda():
     from sparself.recon.gsplat import available
 

@@ -119,6 +119,8 @@ def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     splat = dict(base)
     if cfg.splat_steps_per_view is not None:
         splat.update(steps=0, min_steps_per_view=cfg.splat_steps_per_view)
+    if cfg.splat_far_reach != 1.0:
+        splat.update(far_reach=cfg.splat_far_reach)
     kw = {
         "nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
         "gsplat": base,

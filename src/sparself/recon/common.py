@@ -11,7 +11,7 @@ from typing import Literal
 import numpy as np
 import torch
 
-from sparself.capture.scene import Scene
+from sparself.capture.scene import Scene, points_depth_range
 from sparself.core.errors import ConfigError, InputError
 
 
@@ -42,10 +42,20 @@ def at_most_threads(n: int):
         torch.set_num_threads(prev)
 
 
-def frustum_points(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(about n, 3) random world points: n / len(scene) per camera (at least 1), uniform over its image
-    and log-uniform in depth between the scene's depth bounds."""
+def start_depths(scene: Scene, far_reach: float = 1.0) -> tuple[float, float]:
+    """(near, far) depth range of random starting points: the scene's depth bounds, the far one ``far_reach``
+    times further when they come from its sparse points (a sparse capture rarely triangulates its background:
+    the points' 99th percentile can leave it without Gaussians); bounds from the files are kept as they are."""
     near, far = scene.depth_bounds()
+    if scene.bounds is None and scene.points is not None and points_depth_range(scene.points, scene.poses):
+        far *= far_reach
+    return near, far
+
+
+def frustum_points(scene: Scene, n: int, rng: np.random.Generator, far_reach: float = 1.0) -> np.ndarray:
+    """(about n, 3) random world points: n / len(scene) per camera (at least 1), uniform over its image
+    and log-uniform in depth over :func:`start_depths`."""
+    near, far = start_depths(scene, far_reach)
     pts = []
     per = max(1, n // max(len(scene), 1))
     for i, f in enumerate(scene.frames):

@@ -59,7 +59,9 @@ class SplatConfig:
     steps: optimisation steps (one training view each), at least ``min_steps_per_view`` x views so that a
     denser capture is not fitted less per view (with a fixed count, 35 real views of llff_bird scored
     below 25: 26.44 vs 26.67 dB); init_points: Gaussians to start from (SfM points
-    subsampled, or random in the depth bounds); max_gaussians: growth (clone/split) stops adding beyond this;
+    subsampled, or random in the depth bounds); far_reach: how many times further than the sparse points'
+    far bound the random ones reach, where the depth bounds come from the points (1: to the bound);
+    max_gaussians: growth (clone/split) stops adding beyond this;
     grow_from / grow_until / grow_every: the Gaussians' clone/split schedule (fractions of ``steps`` for the
     first two); grad_threshold: mean screen-space gradient (NDC units, as the reference) that marks a
     Gaussian for cloning (small) or splitting (large: max scale > ``dense_scale`` x scene extent);
@@ -72,6 +74,9 @@ class SplatConfig:
     steps: int = 1500
     min_steps_per_view: int = 60
     init_points: int = 3000
+    # 5 lifted N by 3.9 dB on samples/bird without its bounds file and by 2.9 on dinoSparseRing, but cost
+    # templeSparseRing 2.7 dB and put two of its seeds below N (docs/results.md): not a default yet
+    far_reach: float = 1.0
     max_gaussians: int = 8000
     grow_from: float = 0.1
     grow_until: float = 0.6
@@ -103,7 +108,7 @@ class SplatConfig:
     def __post_init__(self) -> None:
         if self.sh_degree not in (0, 1):
             raise ValueError(f"SplatConfig.sh_degree must be 0 or 1, got {self.sh_degree}")
-        if self.steps < 0 or self.init_points < 1 or self.max_gaussians < 1:
+        if self.steps < 0 or self.init_points < 1 or self.max_gaussians < 1 or self.far_reach < 1:
             raise ValueError(f"invalid SplatConfig {self}")
 
 
@@ -520,7 +525,9 @@ def init_gaussians(scene: Scene, cfg: SplatConfig, rng: np.random.Generator) -> 
         # a few hundred points (triangulated from a sparse capture's inputs) start too few Gaussians to
         # densify from: 616 on llff_bird scored 1.5 dB apart between fit seeds, and 215 on samples/bird
         # 2.3 dB below random points alone
-        pts = np.concatenate([pts, frustum_points(scene, cfg.init_points - len(pts), rng).astype(np.float32)])
+        pts = np.concatenate(
+            [pts, frustum_points(scene, cfg.init_points - len(pts), rng, cfg.far_reach).astype(np.float32)]
+        )
     cols = _point_colors(scene, pts)
     means = torch.tensor(pts, dtype=torch.float32)
     knn = torch.cat(
