@@ -116,7 +116,7 @@ def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     the evaluation's settings applied; ``.many(scenes)`` fits several side by side where that pays."""
     get_reconstructor(name)  # an unknown name fails here, before any fit
     base = dict(seed=cfg.recon_seed, progress=cfg.progress)
-    splat = dict(base)
+    splat: dict[str, float] = dict(base)
     if cfg.splat_steps_per_view is not None:
         splat.update(steps=0, min_steps_per_view=cfg.splat_steps_per_view)
     if cfg.splat_far_reach != 1.0:
