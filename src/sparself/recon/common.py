@@ -46,10 +46,10 @@ def start_depths(scene: Scene, far_reach: float = 1.0) -> tuple[float, float]:
     """(near, far) depth range of random starting points: the scene's depth bounds, the far one ``far_reach``
     times further when they come from its sparse points (a sparse capture rarely triangulates its background:
     the points' 99th percentile can leave it without Gaussians); bounds from the files are kept as they are."""
-    near, far = scene.depth_bounds()
-    if scene.bounds is None and scene.points is not None and points_depth_range(scene.points, scene.poses):
-        far *= far_reach
-    return near, far
+    seen = None if scene.bounds is not None or scene.points is None else points_depth_range(scene.points, scene.poses)
+    if seen is None:  # bounds from the files, or the camera-layout guess
+        return scene.depth_bounds()
+    return seen[0], seen[1] * far_reach
 
 
 def frustum_points(scene: Scene, n: int, rng: np.random.Generator, far_reach: float = 1.0) -> np.ndarray:
