@@ -418,9 +418,11 @@ def test_the_cpu_3dgs_far_reach_reaches_its_fits_and_a_reach_short_of_the_points
     from sparself.evaluation.instruments import reconstructor
 
     assert "far_reach" not in reconstructor("splat", EvalConfig()).settings  # the fits' own default
-    assert reconstructor("splat", EvalConfig(splat_far_reach=5.0)).settings["far_reach"] == 5.0
-    with pytest.raises(ConfigError, match="splat_far_reach must be at least 1"):
-        EvalConfig(splat_far_reach=0.5).validate()
+    assert reconstructor("splat", EvalConfig(splat_far_reach=(5.0,))).settings["far_reach"] == 5.0
+    assert reconstructor("splat", EvalConfig(splat_far_reach=(1.0, 5.0))).settings["far_reach"] == 1.0  # then chosen
+    for bad in [(0.5,), (1.0, 0.5), ()]:
+        with pytest.raises(ConfigError, match="splat_far_reach must be one or more reaches >= 1"):
+            EvalConfig(splat_far_reach=bad).validate()
 
 
 def test_the_seeds_3dgs_self_checks_run_in_turns_on_two_workers_decide_as_one_after_the_other(tmp_path, monkeypatch):

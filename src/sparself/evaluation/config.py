@@ -70,11 +70,13 @@ class EvalConfig:
         "CPU 3DGS optimisation steps per training view (a short run); auto: the reconstructor's own "
         "(1500 steps, at least 60 per view)",
     )
-    splat_far_reach: float = option(
-        1.0,
+    splat_far_reach: tuple[float, ...] = option(
+        (1.0,),
         "CPU 3DGS: how many times further than the sparse points' far bound its random starting points reach, "
-        "on captures whose depth bounds come from their points (1: to the bound; 5 helped two captures and "
-        "hurt a third, see docs/results.md)",
+        "on captures whose depth bounds come from their points (1: to the bound). Several, comma-separated (1,5): "
+        "per capture, the one whose fit on the inputs minus every "
+        f"{VALIDATION_EVERY}th interior one renders those held-back inputs best (the first on ties), for every row; "
+        "see docs/results.md",
     )
     recon_seed: int = option(
         0, "seed of the reconstructors: every row of network seed k, N alone included, is fitted with recon_seed + k"
@@ -170,8 +172,8 @@ class EvalConfig:
             raise ConfigError("holdout_every and sparse_holdout_every must be at least 2")
         if self.seeds < 1:
             raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
-        if self.splat_far_reach < 1:
-            raise ConfigError(f"splat_far_reach must be at least 1, got {self.splat_far_reach}")
+        if not self.splat_far_reach or min(self.splat_far_reach) < 1:
+            raise ConfigError(f"splat_far_reach must be one or more reaches >= 1, got {self.splat_far_reach}")
         if self.splat_steps_per_view is not None and self.splat_steps_per_view < 1:
             raise ConfigError(f"splat_steps_per_view must be at least 1, got {self.splat_steps_per_view}")
         if self.check_steps < 1 or self.check_size < 8:

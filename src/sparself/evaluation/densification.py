@@ -22,6 +22,7 @@ from sparself.evaluation.instruments import (
     with_fit_seed,
     with_images,
 )
+from sparself.evaluation.reach import choose_reach
 from sparself.evaluation.results import (
     BASE,
     NETWORK,
@@ -36,7 +37,7 @@ from sparself.evaluation.results import (
 from sparself.evaluation.scene_eval import SceneEval
 from sparself.evaluation.weighting import choose_weight, validation_views, weighted_scene
 from sparself.recon import Renderer
-from sparself.recon.pool import FitPool
+from sparself.recon.pool import FitPool, Fitter
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +80,22 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
     the network's views once (a single set, as without seeds). The rows' fits and the self-check's share one
     pool: its workers start, and compile the CPU 3DGS, once."""
     with FitPool(fits_at_once(fit)) as pool:
-        _fitted_rows(ev, rname, fit, entry, pool)
+        _fitted_rows(ev, rname, reach_chosen(ev, fit, entry, pool), entry, pool)
+
+
+def reach_chosen(ev: SceneEval, fit: Callable[[Scene], Renderer], entry: ReconResult, pool: FitPool) -> Callable:
+    """``fit`` with the CPU 3DGS's reach :func:`~sparself.evaluation.reach.choose_reach` picks on the inputs
+    (recorded in ``entry``) where the run tries several; ``fit`` itself otherwise."""
+    reaches = ev.cfg.splat_far_reach
+    if len(reaches) < 2 or not isinstance(fit, Fitter) or "far_reach" not in fit.settings:
+        return fit
+    entry.reach = choose_reach(ev.inputs, fit, reaches, fit_seed(ev.cfg, ev.cfg.first_seed), pool)
+    if entry.reach is None:
+        return fit
+    log.info(
+        "%s: %s starts its random points to %gx the sparse points' far depth", ev.name, fit.name, entry.reach.reach
+    )
+    return fit.with_settings(far_reach=entry.reach.reach)
 
 
 def _fitted_rows(

@@ -113,14 +113,16 @@ def baseline_fns(names: Sequence[str]) -> dict[str, SynthFn]:
 
 def reconstructor(name: str, cfg: EvalConfig) -> Fitter:
     """fit(scene) -> renderer for a reconstructor name (:func:`sparself.recon.get_reconstructor`), with
-    the evaluation's settings applied; ``.many(scenes)`` fits several side by side where that pays."""
+    the evaluation's settings applied; ``.many(scenes)`` fits several side by side where that pays. The CPU
+    3DGS starts with the first of ``cfg.splat_far_reach`` (the others are for
+    :func:`~sparself.evaluation.reach.choose_reach`)."""
     get_reconstructor(name)  # an unknown name fails here, before any fit
     base = dict(seed=cfg.recon_seed, progress=cfg.progress)
     splat: dict[str, float] = dict(base)
     if cfg.splat_steps_per_view is not None:
         splat.update(steps=0, min_steps_per_view=cfg.splat_steps_per_view)
-    if cfg.splat_far_reach != 1.0:
-        splat.update(far_reach=cfg.splat_far_reach)
+    if cfg.splat_far_reach != (1.0,):
+        splat.update(far_reach=cfg.splat_far_reach[0])
     kw = {
         "nerf": dict(steps=cfg.nerf_steps, seed=cfg.recon_seed, progress=cfg.progress),
         "gsplat": base,

@@ -281,6 +281,27 @@ def _recon_comparisons(doc: Doc, c: Ctx) -> None:
             doc.p(mlabel)
             doc.table(header, rows)
         _weight_choices(doc, c, r)
+        _reach_choices(doc, c, r)
+
+
+def _reach_choices(doc: Doc, c: Ctx, r: str) -> None:
+    """Where the run tried several reaches for the CPU 3DGS's random starting points: per scene, the reach
+    it chose and each tried reach's PSNR on the held-back input views (never on held-out photos)."""
+    items = []
+    for s in c.ok:
+        ch = s.densification.get(r, ReconResult()).reach
+        if ch is not None:
+            tried = ", ".join(f"{float(k):g}x: {v:.2f} dB" for k, v in ch.validation_psnr.items())
+            items.append(
+                f"{s.name}: {ch.reach:g}x (fits with seed {ch.chosen_on_seed} without the inputs "
+                f"{', '.join(ch.validation_views)}, scored on those: {tried})"
+            )
+    if items:
+        doc.p(
+            f"{r}: how far past the sparse points' far depth every fit of the scene starts its random Gaussians, "
+            "chosen on the inputs alone:"
+        )
+        doc.ul(items)
 
 
 def _weight_choices(doc: Doc, c: Ctx, r: str) -> None:

@@ -8,7 +8,8 @@
 - :class:`SeededSets`: the network's sets over seeds, summarised as mean ± std over seeds.
 - :class:`RowError`: a method or row that failed, with its one-line error.
 - :class:`ReconResult`: one reconstructor on one run: its rows (N alone, N + each method's views, the
-  oracle) keyed by row name, the instrument check and the share of the oracle's gain.
+  oracle) keyed by row name, the instrument check and the share of the oracle's gain, and the CPU 3DGS's
+  :class:`ReachChoice` where several reaches were tried.
 
 A frame may carry a ``group``: :data:`INTERPOLATED` (between the first and last input in capture order)
 or :data:`EXTRAPOLATED` (beyond them). A set whose frames fall in both groups also gets a summary per
@@ -100,6 +101,32 @@ class WeightChoice:
             bool(d.get("confidence", False)),
             d.get("chosen_on_seed"),
         )
+
+
+@dataclass
+class ReachChoice:
+    """How far a capture's CPU 3DGS fits start their random Gaussians past its sparse points, chosen on the
+    inputs alone: the reach, the mean PSNR of each tried reach (as written in the results) at the held-back
+    input views, and the seed the fits were made with."""
+
+    KEY: ClassVar[str] = "far_reach"
+
+    reach: float
+    validation_psnr: dict[str, float]
+    validation_views: list[str]
+    chosen_on_seed: int
+
+    def to_json(self) -> dict:
+        return {
+            "reach": self.reach,
+            "validation_psnr": dict(self.validation_psnr),
+            "validation_views": list(self.validation_views),
+            "chosen_on_seed": self.chosen_on_seed,
+        }
+
+    @classmethod
+    def from_json(cls, d: dict) -> ReachChoice:
+        return cls(float(d["reach"]), dict(d["validation_psnr"]), list(d["validation_views"]), int(d["chosen_on_seed"]))
 
 
 # the decision records a per-seed set may carry, by their JSON key (a new kind of row adds its own here)
@@ -300,6 +327,7 @@ class ReconResult:
     status: Literal["ok", "failed"] | None = None
     error: str | None = None
     seconds: float | None = None
+    reach: ReachChoice | None = None  # the CPU 3DGS's chosen reach, where several were tried
 
     def row(self, name: str) -> Row | None:
         return self.rows.get(name)
@@ -337,13 +365,15 @@ class ReconResult:
         for k in ("status", "error", "seconds"):
             if getattr(self, k) is not None:
                 d[k] = getattr(self, k)
+        if self.reach is not None:
+            d[ReachChoice.KEY] = self.reach.to_json()
         return d
 
     @classmethod
     def from_json(cls, d: dict) -> ReconResult:
         shares = {NETWORK + k[len(SHARE_KEY) :]: v for k, v in d.items() if k.startswith(SHARE_KEY)}
         return cls(
-            {k: row_from_json(v) for k, v in d.items() if isinstance(v, dict)},
+            {k: row_from_json(v) for k, v in d.items() if isinstance(v, dict) and k != ReachChoice.KEY},
             d.get("backend"),
             "backend" in d,
             d.get("oracle_gain_db"),
@@ -352,6 +382,7 @@ class ReconResult:
             d.get("status"),
             d.get("error"),
             d.get("seconds"),
+            ReachChoice.from_json(d[ReachChoice.KEY]) if ReachChoice.KEY in d else None,
         )
 
 

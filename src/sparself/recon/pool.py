@@ -137,7 +137,7 @@ class Fitter:
 
     def with_seed(self, seed: int) -> "Fitter":
         """The same fitter with reconstruction seed ``seed`` (itself when it takes none)."""
-        return replace(self, settings={**self.settings, "seed": seed}) if self.seeded else self
+        return self.with_settings(seed=seed) if self.seeded else self
 
     def many(self, scenes: list[Scene], pool: FitPool | None = None, seeds: list[int] | None = None) -> list[Renderer]:
         """One renderer per scene, in order (scene k fitted with seed ``seeds[k]`` when given); run by ``pool``,
@@ -145,10 +145,20 @@ class Fitter:
         (:func:`~sparself.core.outputs.current_work`) the fits are kept there, and those kept read back
         (:class:`FitStore`)."""
         each = [self] * len(scenes) if seeds is None else [self.with_seed(s) for s in seeds]
-        work = current_work()
-        if work is not None:
-            return FitStore(work / "fits").fitted(each, scenes, pool)
-        return _fitted(each, scenes, pool)
+        return fit_all(each, scenes, pool)
+
+    def with_settings(self, **settings: Any) -> "Fitter":
+        """The same reconstructor with ``settings`` replacing or adding to its own."""
+        return replace(self, settings={**self.settings, **settings})
+
+
+def fit_all(fitters: list[Fitter], scenes: list[Scene], pool: FitPool | None = None) -> list[Renderer]:
+    """Scene k fitted by ``fitters[k]``, in order, as :meth:`Fitter.many` fits them: by ``pool`` (else a pool
+    opened for these fits), kept in and read back from a command's work folder."""
+    work = current_work()
+    if work is not None:
+        return FitStore(work / "fits").fitted(fitters, scenes, pool)
+    return _fitted(fitters, scenes, pool)
 
 
 def _fitted(fitters: list[Fitter], scenes: list[Scene], pool: FitPool | None) -> list[Renderer]:
