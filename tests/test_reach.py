@@ -96,3 +96,21 @@ def test_the_choice_is_read_back_beside_the_rows_and_reported(tmp_path):
     ctx = SimpleNamespace(ok=[SimpleNamespace(name="cap", densification={"3dgs": back})])
     _reach_choices(doc, ctx, "3dgs")
     assert "cap: 5x (fits with seed 0 without the inputs a, b, scored on those: 1x: 14.25 dB, 5x: 15.50 dB)" in lines
+
+
+def test_the_self_checks_fits_start_as_far_as_the_rows_fits():
+    from sparself.core.errors import ConfigError
+    from sparself.evaluation.checked import check_config
+    from sparself.evaluation.selfcheck import SelfCheckConfig, check_settings
+    from sparself.recon import backend
+
+    if backend("3dgs") != "splat":
+        pytest.skip("3dgs runs on gsplat here, which keeps its own recipe")
+    assert check_settings(SelfCheckConfig(recon="3dgs", far_reach=5.0))["far_reach"] == 5.0
+    assert "far_reach" not in check_settings(SelfCheckConfig(recon="3dgs"))  # the fits' own default
+    assert "far_reach" not in check_settings(SelfCheckConfig(recon="nerf", far_reach=5.0))
+    ev = SimpleNamespace(cfg=EvalConfig(), net_synths=[object()])
+    got = check_config(ev, "3dgs", 0, 5.0)
+    assert got is not None and got.far_reach == 5.0
+    with pytest.raises(ConfigError, match="far_reach must be at least 1"):
+        SelfCheckConfig(far_reach=0.5).validate()

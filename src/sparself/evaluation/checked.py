@@ -37,7 +37,7 @@ from sparself.evaluation.selfcheck import (
     remembering,
 )
 from sparself.recon import Renderer
-from sparself.recon.pool import FitPool
+from sparself.recon.pool import FitPool, Fitter
 from sparself.synthesis.plan import PlanConfig
 
 log = logging.getLogger(__name__)
@@ -52,9 +52,10 @@ CHECKED_AS: dict[str, Literal["3dgs", "nerf", "mpi"]] = {
 }
 
 
-def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None:
+def check_config(ev: SceneEval, rname: str, seed: int, far_reach: float = 1.0) -> SelfCheckConfig | None:
     """The self-check ``densify --recon`` runs for reconstructor ``rname`` on network seed ``seed``, its fits
-    seeded like that seed's rows (None: it has none)."""
+    seeded like that seed's rows and starting as far past the sparse points as theirs, ``far_reach`` (None:
+    it has none)."""
     recon = CHECKED_AS.get(rname)
     if recon is None or not ev.cfg.checked or not ev.net_synths:
         return None
@@ -73,6 +74,7 @@ def check_config(ev: SceneEval, rname: str, seed: int) -> SelfCheckConfig | None
         max_photo_loss=ev.cfg.check_max_photo_loss,
         ends_context=ev.cfg.check_ends_context,
         fix_rounds=ev.cfg.check_fix_rounds,
+        far_reach=far_reach,
     )
 
 
@@ -100,7 +102,8 @@ def checked_fits(
     into its NETWORK_FIXED row where it was used. ``base``: each seed's N-only fit, the row where nothing
     is kept. ``rows_pool``: the rows' pool, whose started workers the checks use where they would start as many."""
     seeds = ev.cfg.seed_list[: len(ev.net_synths)]
-    first = check_config(ev, rname, seeds[0]) if seeds else None
+    reach = fit.settings.get("far_reach", 1.0) if isinstance(fit, Fitter) else 1.0
+    first = check_config(ev, rname, seeds[0], reach) if seeds else None
     if first is None:
         return
     cfgs = [replace(first, check_seed=fit_seed(ev.cfg, s)) for s in seeds]

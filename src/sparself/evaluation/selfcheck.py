@@ -187,6 +187,12 @@ class SelfCheckConfig:
         "below N) and the NeRF (measured: it kept less at 9 llff_bird inputs, +1.00 against +1.16 dB)",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
+    far_reach: float = option(
+        1.0,
+        "CPU 3DGS: how many times further than the sparse points' far depth the check's fits start their random "
+        "Gaussians, on captures whose depth bounds come from their points (1: to that depth; see docs/results.md)",
+        flag="--splat-far-reach",
+    )
     check_workers: int | None = option(
         None,
         "processes the self-check's fits run in at once (auto: one per core, at most 4, for the CPU 3DGS, "
@@ -240,6 +246,8 @@ class SelfCheckConfig:
         check_choices(self)
         if self.fix_rounds < 1:
             raise ConfigError(f"fix_rounds must be >= 1, got {self.fix_rounds}")
+        if self.far_reach < 1:
+            raise ConfigError(f"far_reach must be at least 1, got {self.far_reach}")
         if self.check_workers is not None and self.check_workers < 1:
             raise ConfigError(f"check_workers must be >= 1, got {self.check_workers}")
         if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
@@ -280,6 +288,8 @@ def check_settings(cfg: SelfCheckConfig) -> dict:
         kw["steps"] = cfg.check_steps
         if backend(cfg.recon) == "splat":
             kw["min_steps_per_view"] = 0  # the CPU path raises steps to 60 per view otherwise
+    if cfg.far_reach != 1.0 and backend(cfg.recon) == "splat":
+        kw["far_reach"] = cfg.far_reach
     return kw
 
 
