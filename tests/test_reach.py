@@ -106,11 +106,36 @@ def test_the_self_checks_fits_start_as_far_as_the_rows_fits():
 
     if backend("3dgs") != "splat":
         pytest.skip("3dgs runs on gsplat here, which keeps its own recipe")
-    assert check_settings(SelfCheckConfig(recon="3dgs", far_reach=5.0))["far_reach"] == 5.0
+    assert check_settings(SelfCheckConfig(recon="3dgs", far_reach=(5.0,)))["far_reach"] == 5.0
     assert "far_reach" not in check_settings(SelfCheckConfig(recon="3dgs"))  # the fits' own default
-    assert "far_reach" not in check_settings(SelfCheckConfig(recon="nerf", far_reach=5.0))
+    assert "far_reach" not in check_settings(SelfCheckConfig(recon="nerf", far_reach=(5.0,)))
     ev = SimpleNamespace(cfg=EvalConfig(), net_synths=[object()])
     got = check_config(ev, "3dgs", 0, 5.0)
-    assert got is not None and got.far_reach == 5.0
-    with pytest.raises(ConfigError, match="far_reach must be at least 1"):
-        SelfCheckConfig(far_reach=0.5).validate()
+    assert got is not None and got.far_reach == (5.0,)  # the rows' reach, not chosen again
+    for bad in [(0.5,), ()]:
+        with pytest.raises(ConfigError, match="far_reach must be one or more reaches >= 1"):
+            SelfCheckConfig(far_reach=bad).validate()
+
+
+def test_densify_chooses_its_checks_reach_on_held_back_inputs_and_records_it(fits):
+    from sparself.capture.io.dense import SelfCheck
+    from sparself.evaluation.selfcheck import Checked, SelfCheckConfig, _reach_chosen, _with_reach
+    from sparself.recon import backend
+
+    if backend("3dgs") != "splat":
+        pytest.skip("3dgs runs on gsplat here, which keeps its own recipe")
+    cfg = SelfCheckConfig(recon="3dgs", far_reach=(1.0, 5.0), check_seed=4, check_size=24)
+    got, choice = _reach_chosen(_scene(), cfg, pool=None)
+    assert got.far_reach == (5.0,) and choice is not None and choice.reach == 5.0 and choice.chosen_on_seed == 4
+    assert [f.settings["far_reach"] for f, _ in fits] == [1.0, 5.0]
+    assert {f.settings["steps"] for f, _ in fits} == {cfg.check_steps}  # the check's own fits
+    assert {sc.cameras[1].width for _, sc in fits} == {24}  # at the check's size
+    assert _reach_chosen(_scene(), SelfCheckConfig(recon="3dgs", far_reach=(5.0,)), pool=None) == (
+        SelfCheckConfig(recon="3dgs", far_reach=(5.0,)),
+        None,
+    )
+    record = SelfCheck("3dgs", "weak", ("src2",), 20.0, ((1.0, 20.0),), None, None, (), "no view kept")
+    checked = _with_reach(Checked([], np.zeros((0, 2, 2, 3)), None, record), choice)
+    assert checked.record is not None and checked.record.far_reach == 5.0
+    assert checked.record.reason.startswith("no view kept; random starting points to 5x the sparse points' far depth")
+    assert SelfCheck.from_json(checked.record.to_json()) == checked.record

@@ -93,6 +93,8 @@ from sparself.evaluation.folds import (
     view_gains,
 )
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders, with_images
+from sparself.evaluation.reach import choose_reach
+from sparself.evaluation.results import ReachChoice
 from sparself.evaluation.weighting import (
     ValidationViews,
     held_back_psnr,
@@ -187,10 +189,12 @@ class SelfCheckConfig:
         "below N) and the NeRF (measured: it kept less at 9 llff_bird inputs, +1.00 against +1.16 dB)",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
-    far_reach: float = option(
-        1.0,
+    far_reach: tuple[float, ...] = option(
+        (1.0,),
         "CPU 3DGS: how many times further than the sparse points' far depth the check's fits start their random "
-        "Gaussians, on captures whose depth bounds come from their points (1: to that depth; see docs/results.md)",
+        "Gaussians, on captures whose depth bounds come from their points (1: to that depth). Several, "
+        "comma-separated (1,5): the one whose fit without the held-back inputs renders them best (the first on "
+        "ties); see docs/results.md",
         flag="--splat-far-reach",
     )
     check_workers: int | None = option(
@@ -246,8 +250,8 @@ class SelfCheckConfig:
         check_choices(self)
         if self.fix_rounds < 1:
             raise ConfigError(f"fix_rounds must be >= 1, got {self.fix_rounds}")
-        if self.far_reach < 1:
-            raise ConfigError(f"far_reach must be at least 1, got {self.far_reach}")
+        if not self.far_reach or min(self.far_reach) < 1:
+            raise ConfigError(f"far_reach must be one or more reaches >= 1, got {self.far_reach}")
         if self.check_workers is not None and self.check_workers < 1:
             raise ConfigError(f"check_workers must be >= 1, got {self.check_workers}")
         if self.check_size < 8 or (self.check_steps is not None and self.check_steps < 1):
@@ -288,8 +292,8 @@ def check_settings(cfg: SelfCheckConfig) -> dict:
         kw["steps"] = cfg.check_steps
         if backend(cfg.recon) == "splat":
             kw["min_steps_per_view"] = 0  # the CPU path raises steps to 60 per view otherwise
-    if cfg.far_reach != 1.0 and backend(cfg.recon) == "splat":
-        kw["far_reach"] = cfg.far_reach
+    if cfg.far_reach != (1.0,) and backend(cfg.recon) == "splat":
+        kw["far_reach"] = cfg.far_reach[0]  # the others are for :func:`choose_reach`
     return kw
 
 
@@ -1251,14 +1255,39 @@ def checked_views(
     that pool, when ``fits`` is not given)."""
     if fits is None:
         with FitPool(check_workers(cfg)) as pool:
+            cfg, reach = _reach_chosen(inputs, cfg, pool)
             second = other_seed(cfg)
             other = None if second is None else check_fits(second, pool)
             fits = remembering(check_fits(cfg, pool))  # e.g. the confirmation's bases, when a second way decides
-            return checked_views(inputs, paper, plan, synth, cfg, sources, fits, other)
+            targets, checked, final = checked_views(inputs, paper, plan, synth, cfg, sources, fits, other)
+            return targets, _with_reach(checked, reach), final
     mode = plan_of(cfg)
     targets = weakest_plan(at_check_size(inputs, cfg), plan, fits, cfg.gain_gap) if mode == "weak" else paper
     final = synth(inputs if sources is None else sources, targets)
     return targets, self_check(inputs, targets, synth, final, cfg, mode, fits, other), final
+
+
+def _reach_chosen(inputs: Scene, cfg: SelfCheckConfig, pool: FitPool) -> tuple[SelfCheckConfig, ReachChoice | None]:
+    """``cfg`` with the one reach of several that :func:`choose_reach` picks for its fits at the check size, and
+    the choice (None: one reach given, or one that changes nothing on this capture)."""
+    if len(cfg.far_reach) < 2 or "far_reach" not in check_settings(cfg):
+        return cfg, None
+    fitter = Fitter(cfg.recon, check_settings(cfg))
+    choice = choose_reach(at_check_size(inputs, cfg), fitter, cfg.far_reach, cfg.check_seed, pool)
+    return (cfg, None) if choice is None else (replace(cfg, far_reach=(choice.reach,)), choice)
+
+
+def _with_reach(checked: Checked, choice: ReachChoice | None) -> Checked:
+    """``checked`` whose record names the reach its fits started with and how it was chosen."""
+    if choice is None or checked.record is None:
+        return checked
+    tried = tuple((float(r), p) for r, p in choice.validation_psnr.items())
+    said = ", ".join(f"{r:g}x {p:.2f}" for r, p in tried)
+    reason = (
+        f"{checked.record.reason}; random starting points to {choice.reach:g}x the sparse points' far depth ({said} dB)"
+    )
+    record = replace(checked.record, far_reach=choice.reach, psnr_by_far_reach=tried, reason=reason)
+    return replace(checked, record=record)
 
 
 def _fitted_confidence(images: np.ndarray, conf: np.ndarray | None, reference: np.ndarray, cfg) -> np.ndarray | None:

@@ -160,7 +160,9 @@ class SelfCheck:
     kept views' test on photos no fold held back (None: not run); pixel_weights: how the views' pixels were
     weighted (confidence, uniform; None: not checked); psnr_by_pixel_weights: (pixel weights, mean PSNR at the
     best synthetic-frame weight) for each one tried when the check chose between them (empty: not chosen);
-    rounds: the later rounds of render -> fix -> refit tried (empty: one round)."""
+    rounds: the later rounds of render -> fix -> refit tried (empty: one round); far_reach: how many times past
+    the sparse points' far depth the CPU 3DGS's fits started their random Gaussians, where it was chosen (None:
+    not chosen), and psnr_by_far_reach: (reach, mean PSNR of the held-back photos) for each one tried."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -180,6 +182,8 @@ class SelfCheck:
     pixel_weights: str | None = None
     psnr_by_pixel_weights: tuple[tuple[str, float], ...] = ()
     rounds: tuple[FixRound, ...] = ()
+    far_reach: float | None = None
+    psnr_by_far_reach: tuple[tuple[float, float], ...] = ()
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -189,6 +193,7 @@ class SelfCheck:
         doc = asdict(self)
         doc["psnr_by_weight"] = [{"weight": w, "psnr": p} for w, p in self.psnr_by_weight]
         doc["psnr_by_pixel_weights"] = [{"pixel_weights": m, "psnr": p} for m, p in self.psnr_by_pixel_weights]
+        doc["psnr_by_far_reach"] = [{"far_reach": r, "psnr": p} for r, p in self.psnr_by_far_reach]
         return doc
 
     @classmethod
@@ -215,6 +220,10 @@ class SelfCheck:
                 (str(d["pixel_weights"]), float(d["psnr"])) for d in doc.get("psnr_by_pixel_weights", ())
             ),
             rounds=tuple(FixRound.from_json(d) for d in doc.get("rounds", ())),
+            far_reach=_opt_float(doc.get("far_reach")),
+            psnr_by_far_reach=tuple(
+                (float(d["far_reach"]), float(d["psnr"])) for d in doc.get("psnr_by_far_reach", ())
+            ),
         )
 
 
