@@ -80,7 +80,7 @@ def test_the_protocols_rows_fit_with_the_chosen_reach_and_record_it(fits):
     fit = Fitter("splat", {"seed": 3, "far_reach": 1.0})
     chosen = reach_chosen(ev, fit, entry, pool=None)
     assert isinstance(chosen, Fitter) and chosen.settings == {"seed": 3, "far_reach": 5.0}
-    assert entry.reach is not None and entry.reach.chosen_on_seed == 5  # the first seed's fits
+    assert entry.reach is not None and entry.reach.chosen_on_seed == 3  # seed 0's, as in every batch unit
     one = SimpleNamespace(cfg=EvalConfig(splat_far_reach=(5.0,)), inputs=_scene(), name="plane")
     assert reach_chosen(one, fit, ReconResult(), pool=None) is fit  # one reach: nothing to choose
 

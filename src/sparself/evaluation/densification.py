@@ -85,11 +85,12 @@ def reconstruct(ev: SceneEval, rname: str, fit: Callable[[Scene], Renderer], ent
 
 def reach_chosen(ev: SceneEval, fit: Callable[[Scene], Renderer], entry: ReconResult, pool: FitPool) -> Callable:
     """``fit`` with the CPU 3DGS's reach :func:`~sparself.evaluation.reach.choose_reach` picks on the inputs
-    (recorded in ``entry``) where the run tries several; ``fit`` itself otherwise."""
+    (recorded in ``entry``) where the run tries several; ``fit`` itself otherwise. It is chosen with network
+    seed 0's reconstruction seed whatever the run's first seed, so that a batch's seed units agree."""
     reaches = ev.cfg.splat_far_reach
     if len(reaches) < 2 or not isinstance(fit, Fitter) or "far_reach" not in fit.settings:
         return fit
-    entry.reach = choose_reach(ev.inputs, fit, reaches, fit_seed(ev.cfg, ev.cfg.first_seed), pool)
+    entry.reach = choose_reach(ev.inputs, fit, reaches, fit_seed(ev.cfg, 0), pool)
     if entry.reach is None:
         return fit
     log.info(
