@@ -339,7 +339,7 @@ def test_the_fixers_views_are_scored_wherever_it_was_used_even_when_no_view_was_
     )
     monkeypatch.setattr(selfcheck, "validated_fixer", used)
     strict = checked_row.check_config
-    monkeypatch.setattr(checked_row, "check_config", lambda ev, r, s: replace(strict(ev, r, s), min_gain=99.0))
+    monkeypatch.setattr(checked_row, "check_config", lambda *a: replace(strict(*a), min_gain=99.0))
     hooks, _ = _hooks()
     hooks["reconstructors"] = {"nerf": hooks["reconstructors"]["nerf"]}
     s = ev.evaluate([_capture(tmp_path / "cap")], tmp_path / "out", _tiny_cfg(), **hooks).scenes[0]
@@ -417,9 +417,9 @@ def test_the_cpu_3dgs_far_reach_reaches_its_fits_and_a_reach_short_of_the_points
     from sparself.core.errors import ConfigError
     from sparself.evaluation.instruments import reconstructor
 
-    assert "far_reach" not in reconstructor("splat", EvalConfig()).settings  # the fits' own default
+    assert "far_reach" not in reconstructor("splat", EvalConfig(splat_far_reach=(1.0,))).settings  # the fits' own
     assert reconstructor("splat", EvalConfig(splat_far_reach=(5.0,))).settings["far_reach"] == 5.0
-    assert reconstructor("splat", EvalConfig(splat_far_reach=(1.0, 5.0))).settings["far_reach"] == 1.0  # then chosen
+    assert reconstructor("splat", EvalConfig()).settings["far_reach"] == 1.0  # the first of 1, 5, then chosen
     for bad in [(0.5,), (1.0, 0.5), ()]:
         with pytest.raises(ConfigError, match="splat_far_reach must be one or more reaches >= 1"):
             EvalConfig(splat_far_reach=bad).validate()

@@ -107,7 +107,8 @@ def test_the_self_checks_fits_start_as_far_as_the_rows_fits():
     if backend("3dgs") != "splat":
         pytest.skip("3dgs runs on gsplat here, which keeps its own recipe")
     assert check_settings(SelfCheckConfig(recon="3dgs", far_reach=(5.0,)))["far_reach"] == 5.0
-    assert "far_reach" not in check_settings(SelfCheckConfig(recon="3dgs"))  # the fits' own default
+    assert "far_reach" not in check_settings(SelfCheckConfig(recon="3dgs", far_reach=(1.0,)))  # the fits' own default
+    assert SelfCheckConfig().far_reach == EvalConfig().splat_far_reach == (1.0, 5.0)  # densify and its row alike
     assert "far_reach" not in check_settings(SelfCheckConfig(recon="nerf", far_reach=(5.0,)))
     ev = SimpleNamespace(cfg=EvalConfig(), net_synths=[object()])
     got = check_config(ev, "3dgs", 0, 5.0)

@@ -190,11 +190,11 @@ class SelfCheckConfig:
     )
     check_seed: int = option(0, "seed of the self-check's fits")
     far_reach: tuple[float, ...] = option(
-        (1.0,),
+        (1.0, 5.0),
         "CPU 3DGS: how many times further than the sparse points' far depth the check's fits start their random "
-        "Gaussians, on captures whose depth bounds come from their points (1: to that depth). Several, "
-        "comma-separated (1,5): the one whose fit without the held-back inputs renders them best (the first on "
-        "ties); see docs/results.md",
+        "Gaussians, on captures whose depth bounds come from their points; several, comma-separated: the one whose "
+        "fit without the held-back inputs renders them best (the first on ties); one: that reach (1: to the "
+        "points' depth); see docs/results.md",
         flag="--splat-far-reach",
     )
     check_workers: int | None = option(
@@ -1274,7 +1274,10 @@ def _reach_chosen(inputs: Scene, cfg: SelfCheckConfig, pool: FitPool) -> tuple[S
         return cfg, None
     fitter = Fitter(cfg.recon, check_settings(cfg))
     choice = choose_reach(at_check_size(inputs, cfg), fitter, cfg.far_reach, cfg.check_seed, pool)
-    return (cfg, None) if choice is None else (replace(cfg, far_reach=(choice.reach,)), choice)
+    if choice is None:
+        return cfg, None
+    log.info("self-check: %s starts its random points to %gx the sparse points' far depth", cfg.recon, choice.reach)
+    return replace(cfg, far_reach=(choice.reach,)), choice
 
 
 def _with_reach(checked: Checked, choice: ReachChoice | None) -> Checked:
