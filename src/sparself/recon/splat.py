@@ -75,7 +75,7 @@ class SplatConfig:
     min_steps_per_view: int = 60
     init_points: int = 3000
     # 5 lifted N by 3.9 dB on samples/bird without its bounds file and by 2.9 on dinoSparseRing, but cost
-    # templeSparseRing 2.7 dB and put two of its seeds below N (docs/results.md): not a default yet
+    # templeSparseRing 2.7 dB (docs/results.md): evaluate and densify choose it per capture (evaluation/reach.py)
     far_reach: float = 1.0
     max_gaussians: int = 8000
     grow_from: float = 0.1
