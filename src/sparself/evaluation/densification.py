@@ -22,7 +22,7 @@ from sparself.evaluation.instruments import (
     with_fit_seed,
     with_images,
 )
-from sparself.evaluation.reach import choose_reach
+from sparself.evaluation.reach import choose_reach, reach_to_choose
 from sparself.evaluation.results import (
     BASE,
     NETWORK,
@@ -88,7 +88,7 @@ def reach_chosen(ev: SceneEval, fit: Callable[[Scene], Renderer], entry: ReconRe
     (recorded in ``entry``) where the run tries several; ``fit`` itself otherwise. It is chosen with network
     seed 0's reconstruction seed whatever the run's first seed, so that a batch's seed units agree."""
     reaches = ev.cfg.splat_far_reach
-    if len(reaches) < 2 or not isinstance(fit, Fitter) or "far_reach" not in fit.settings:
+    if not isinstance(fit, Fitter) or not reach_to_choose(fit, reaches):
         return fit
     entry.reach = choose_reach(ev.inputs, fit, reaches, fit_seed(ev.cfg, 0), pool)
     if entry.reach is None:

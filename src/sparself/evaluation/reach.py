@@ -16,6 +16,12 @@ from sparself.recon.common import start_depths
 from sparself.recon.pool import FitPool, Fitter, fit_all
 
 
+def reach_to_choose(fit: Fitter, reaches: Sequence[float]) -> bool:
+    """Whether there is a reach to choose for ``fit``: several are given and it takes one (the CPU 3DGS's
+    settings carry ``far_reach``; gsplat, the NeRF and the MPI take none)."""
+    return len(reaches) > 1 and "far_reach" in fit.settings
+
+
 def reach_matters(scene: Scene, reaches: Sequence[float]) -> bool:
     """Whether the reaches start ``scene``'s random points at different depths: only where its depth bounds
     come from its sparse points (:func:`~sparself.recon.common.start_depths`)."""

@@ -93,7 +93,7 @@ from sparself.evaluation.folds import (
     view_gains,
 )
 from sparself.evaluation.instruments import SynthFn, images_and_confidence, renders, with_images
-from sparself.evaluation.reach import choose_reach
+from sparself.evaluation.reach import choose_reach, reach_to_choose
 from sparself.evaluation.results import ReachChoice
 from sparself.evaluation.weighting import (
     ValidationViews,
@@ -1270,9 +1270,9 @@ def checked_views(
 def _reach_chosen(inputs: Scene, cfg: SelfCheckConfig, pool: FitPool) -> tuple[SelfCheckConfig, ReachChoice | None]:
     """``cfg`` with the one reach of several that :func:`choose_reach` picks for its fits at the check size, and
     the choice (None: one reach given, or one that changes nothing on this capture)."""
-    if len(cfg.far_reach) < 2 or "far_reach" not in check_settings(cfg):
-        return cfg, None
     fitter = Fitter(cfg.recon, check_settings(cfg))
+    if not reach_to_choose(fitter, cfg.far_reach):
+        return cfg, None
     choice = choose_reach(at_check_size(inputs, cfg), fitter, cfg.far_reach, cfg.check_seed, pool)
     if choice is None:
         return cfg, None
