@@ -362,6 +362,9 @@ def test_implausible_camera_warns_with_the_numbers():
     (w,) = camera_warnings(Camera("SIMPLE_RADIAL", 113, 85, (2826.0, 56.5, 42.5, 0.0)))
     assert "fx=2826 px for 113x85 photos is a 2.3 x 1.7 deg field of view" in w
     assert camera_warnings(Camera.pinhole(1600, 1200, 1400.0)) == []  # 59 deg: a phone
+    # a real narrow rig (Middlebury's: 11.0 x 8.2 deg) is plausible; a 4.6 deg wide side is not
+    assert camera_warnings(Camera("PINHOLE", 640, 480, (3310.4, 3325.5, 316.7, 200.6))) == []
+    assert camera_warnings(Camera.pinhole(640, 480, 8000.0))
     assert "150" in " ".join(camera_warnings(Camera.pinhole(1600, 1200, 150.0))) or camera_warnings(
         Camera.pinhole(1600, 1200, 150.0)
     )  # 158 deg: fisheye-like

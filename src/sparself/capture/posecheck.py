@@ -58,7 +58,9 @@ WINDOW = 2
 ORDER_RATIO = 1.5
 ERR_K, ERR_FLOOR_PX = 3.0, 2.0
 TRACK_K, TRACK_FLOOR = 0.6, 2.5
-FOV_MIN_DEG, FOV_MAX_DEG = 10.0, 150.0
+# the narrow bound is on the wider side: 6 deg is a ~350 mm lens on a full-frame camera. Middlebury's real rig
+# sees 11.0 x 8.2 deg (fx 3310 px at 640x480), and a bound of 10 on the narrower side called it implausible
+FOV_MIN_DEG, FOV_MAX_DEG = 6.0, 150.0
 FOCAL_RATIO = 1.5
 
 
@@ -268,11 +270,12 @@ def _stat_reasons(stats: list[ImageStats]) -> dict[str, list[str]]:
 
 
 def camera_warnings(cam: Camera, exif_focal_px: float | None = None) -> list[str]:
-    """Sentences about an implausible camera: field of view out of [10, 150] degrees, or a focal length
-    far from the EXIF one (``exif_focal_px``, at the camera's resolution)."""
+    """Sentences about an implausible camera: a field of view whose wider side is out of [FOV_MIN_DEG,
+    FOV_MAX_DEG] degrees, or a focal length far from the EXIF one (``exif_focal_px``, at the camera's
+    resolution)."""
     fh, fv = cam.fov_deg
     out = []
-    if min(fh, fv) < FOV_MIN_DEG or max(fh, fv) > FOV_MAX_DEG:
+    if not FOV_MIN_DEG <= max(fh, fv) <= FOV_MAX_DEG:
         out.append(
             f"recovered camera is implausible: fx={cam.fx:.0f} px for {cam.width}x{cam.height} photos is a "
             f"{fh:.1f} x {fv:.1f} deg field of view (phones and most lenses see 30-100 deg)"
