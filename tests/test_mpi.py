@@ -103,3 +103,53 @@ def test_sweep_can_skip_synthetic_frames():
     real_only = fit(sc, MpiConfig(num_planes=NUM_PLANES, neighbors=2, sweep_synthetic=False))
     assert sorted(real_only._neighbourhood(2)) == [0, 2, 4]
     assert sorted(real_only._neighbourhood(1)) == [0, 1, 2]  # a synthetic view still gets its MPI, from real ones
+
+
+def _neighbourhood_tensors(sc):
+    images = torch.from_numpy(np.stack([f.image for f in sc.frames]).transpose(0, 3, 1, 2).copy()).float()
+    Ks = np.stack([sc.camera(i).K for i in range(len(sc))])
+    w2cs = np.stack([f.pose.w2c() for f in sc.frames])
+    return images, Ks, w2cs
+
+
+def test_a_sweep_counts_each_view_by_its_pixel_weight():
+    """Weights of 1 change nothing; a view of weight 0 leaves the MPI as if it were not in the sweep."""
+    from sparself.core.geometry import inverse_depth_planes
+    from sparself.recon.mpi import build_mpi
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2, 0.3, 0.4))
+    images, Ks, w2cs = _neighbourhood_tensors(sc)
+    depths, cfg, pose = inverse_depth_planes(1.0, 10.0, NUM_PLANES), MpiConfig(num_planes=NUM_PLANES), sc.frames[0].pose
+    plain = build_mpi(images, Ks, w2cs, pose, depths, cfg).rgba
+    ones = torch.ones(5, 1, *images.shape[2:])
+    assert torch.allclose(build_mpi(images, Ks, w2cs, pose, depths, cfg, ones).rgba, plain, atol=1e-6)
+    noisy = images.clone()
+    noisy[3] = torch.rand(noisy[3].shape, generator=torch.Generator().manual_seed(0))
+    keep = [0, 1, 2, 4]
+    without = build_mpi(images[keep], Ks[keep], w2cs[keep], pose, depths, cfg).rgba
+    muted = ones.clone()
+    muted[3] = 0.0
+    # columns that every view sees on every plane (the nearest shifts 80 px * 0.4 / 1 = 32 px), box included
+    seen = (..., slice(36, None))
+    assert torch.allclose(build_mpi(noisy, Ks, w2cs, pose, depths, cfg, muted).rgba[seen], without[seen], atol=1e-6)
+    assert (build_mpi(noisy, Ks, w2cs, pose, depths, cfg).rgba[seen] - without[seen]).abs().max() > 0.1
+
+
+def test_a_synthesized_view_of_low_weight_spoils_its_neighbours_mpis_less():
+    """The renderer passes each frame's pixel weight to the sweeps: a wrong view at weight 0.01 barely moves the
+    MPI of the view beside it, which re-renders its own photo; unweighted sweeps let it in fully."""
+    from dataclasses import replace
+
+    sc = plane_scene(xs=(0.0, 0.1, 0.2, 0.3, 0.4))
+    noise = np.random.default_rng(0).random(sc.frames[1].image.shape).astype(np.float32)
+    bad = replace(sc.frames[1], image=noise, synthetic=True, weight=0.01)
+    sc = replace(sc, frames=[bad if i == 1 else f for i, f in enumerate(sc.frames)])
+    cam, photo = sc.camera(0), sc.frames[0].image
+    scores = {
+        on: psnr(
+            fit(sc, MpiConfig(num_planes=NUM_PLANES, weighted_sweeps=on, render_k=1)).render(sc.frames[0].pose, cam),
+            photo,
+        )
+        for on in (True, False)
+    }
+    assert scores[True] > scores[False] + 3.0

@@ -13,7 +13,7 @@ import pytest
 from planescene import plane_scene, render_plane, small_plane_scene
 from sparself import pipeline
 from sparself.capture.io import read_scene, write_scene
-from sparself.capture.io.dense import Confirmation, GapTrend, SelfCheck, ViewCheck, read_selfcheck
+from sparself.capture.io.dense import Confirmation, FillControl, GapTrend, SelfCheck, ViewCheck, read_selfcheck
 from sparself.core.content import same_content
 from sparself.core.geometry import Pose
 from sparself.evaluation.folds import (
@@ -81,8 +81,39 @@ def test_bad_views_are_not_written_and_sparself_json_says_why(tmp_path, monkeypa
     assert rec.kept == () and rec.weight is None and len(rec.views) == 6
     assert "without synthesized views" in rec.reason and "mpi" in rec.reason
     assert max(p for _, p in rec.psnr_by_weight) < rec.psnr_without  # noise made every fit worse
-    assert all(v.gain < 0 for v in rec.views if v.gain is not None)
+    # noise loses between the inputs; past them it can gain by covering the end photos, and the fill
+    # control drops every view that gains so
+    gaining = {v.name for v in rec.views if v.gain is not None and v.gain > 0}
+    assert gaining <= {v.name for v in rec.views if not 0 <= v.index <= 11}
+    assert gaining <= set(rec.fill_control.dropped if rec.fill_control else ())
     assert [r.getMessage() for r in caplog.records if "self-check" in r.getMessage()] == [f"self-check: {rec.reason}"]
+
+
+def _misplaced(scene, targets):
+    """Views of the plane seen from the wrong place: a camera half the capture aside (a network that copies
+    a far photo), so each disagrees with the photos around its pose."""
+
+    def aside(t):
+        return Pose.from_center(t.pose.qvec, t.pose.center + np.array([0.6, 0.25, 0.0]))
+
+    return np.stack([render_plane(aside(t), scene.cameras[t.camera_id]) for t in targets])
+
+
+def test_views_past_the_ends_that_only_cover_the_end_photos_are_not_written(tmp_path, monkeypatch):
+    """Past the inputs the MPI leaves part of a held-back end photo uncovered (black), and any view there gains
+    by covering it: misplaced views gain over the fit without them, but no more than content-free fills at the
+    same poses (flat or noise), so the fill control drops them, and the record says so."""
+    dense = _densify(tmp_path, monkeypatch, _misplaced)
+    rec = read_selfcheck(tmp_path / "out" / "scene")
+    past = [v for v in rec.views if not 0 <= v.index <= 11]
+    assert len(past) == 2 and all(v.gain > 0 for v in past)  # they gain at the end photos: coverage
+    assert not any(f.synthetic for f in dense.frames) and rec.kept == ()
+    c = rec.fill_control
+    assert c is not None and set(c.dropped) == {v.name for v in past} and len(c.photos) == 2
+    assert len(c.psnr_noise) == 2
+    # at each photo some fill renders it at least as well as the views
+    assert all(v <= max(f, *n) for v, f, n in zip(c.psnr_views, c.psnr_flat, c.psnr_noise))
+    assert "flat and two noise fills" in rec.reason
 
 
 def test_good_views_are_kept_with_their_gains_on_the_paper_plan(tmp_path, monkeypatch):
@@ -568,6 +599,14 @@ def test_the_confirmation_runs_by_default_for_the_3dgs_and_the_nerf_and_as_asked
     assert not confirm_on(SelfCheckConfig(recon="nerf", confirm=False)) and confirm_on(replace(MPI, confirm=True))
 
 
+def test_the_fill_control_runs_by_default_for_the_mpi_only_and_as_asked_otherwise():
+    from sparself.evaluation.selfcheck import fill_control_on
+
+    assert fill_control_on(MPI) and not fill_control_on(replace(MPI, fill_control=False))
+    assert not any(fill_control_on(SelfCheckConfig(recon=r)) for r in ("3dgs", "nerf"))
+    assert fill_control_on(SelfCheckConfig(recon="3dgs", fill_control=True))
+
+
 def test_the_pixel_weights_are_chosen_per_capture_by_default_for_the_3dgs_only_and_as_asked_otherwise():
     from sparself.evaluation.selfcheck import pixel_weights_of
 
@@ -857,6 +896,7 @@ def test_the_self_check_record_round_trips_through_json():
         confirmation=Confirmation(("c", "d"), (0.25, -1.5), False),
         pixel_weights="uniform",
         psnr_by_pixel_weights=(("confidence", 21.25), ("uniform", 21.5)),
+        fill_control=FillControl(("a", "e"), (22.5, 19.0), (22.0, 19.25), ("m",), ((21.5, 21.25), (19.5, 19.0))),
     )
     assert SelfCheck.from_json(json.loads(json.dumps(seeded.to_json()))) == seeded
     assert rec.kept == ("n",)

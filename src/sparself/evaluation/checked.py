@@ -73,6 +73,7 @@ def check_config(ev: SceneEval, rname: str, seed: int, far_reach: float = 1.0) -
         confirm_prune=ev.cfg.check_confirm_prune,
         max_photo_loss=ev.cfg.check_max_photo_loss,
         ends_context=ev.cfg.check_ends_context,
+        fill_control=ev.cfg.check_fill_control,
         fix_rounds=ev.cfg.check_fix_rounds,
         far_reach=(far_reach,),
     )

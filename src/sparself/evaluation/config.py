@@ -126,6 +126,11 @@ class EvalConfig:
         "the checked row's self-check judges the views past the ends beside the views between the inputs "
         "(densify --ends-context; auto: for the 3DGS)",
     )
+    check_fill_control: bool | None = option(
+        None,
+        "the checked row's self-check keeps a view only where it beats content-free fills at its pose (flat, "
+        "two of noise) at its held-back photos (densify --fill-control; auto: for the MPI)",
+    )
     check_fix_rounds: int = option(
         1,
         "rounds of render -> fix -> refit in the checked row's self-check, each kept while it raises the folds' "

@@ -34,6 +34,11 @@ poses it can be: the check measures with the error of its folds, whose gaps are 
   views' mean gain in gaps two and three wide is extrapolated to one (linear in the log of the width), and
   when that is not above ``min_gain`` no view between the inputs is kept (those past the ends keep their fold's
   decision: there the final fit lacks the photos as the check's does).
+* **Against content-free fills** (``fill_control``; by default for the MPI): a frame at a new pose can gain
+  whatever it shows, as one more reference in the MPI's blend or as cover for a held-back end photo that the
+  other inputs leave black. Each fold that keeps views is fitted again with flat fills of their mean colours
+  and with two draws of uniform noise in their place, and a view stays only where its nearest scored photos
+  render better with it than with every fill (:func:`_fill_controlled`).
 * **Confirm on other photos** (``confirm``; by default for the 3DGS and the NeRF): the views are kept on the
   folds' held-back photos, so their gain there is chosen as much as measured. Two more folds hold back the
   interior photos no fold held back (:func:`~sparself.evaluation.folds.confirm_folds`); the kept views,
@@ -72,7 +77,7 @@ import numpy as np
 import torch
 
 from sparself.capture.images import resize_images
-from sparself.capture.io.dense import Confirmation, FixRound, GapTrend, SelfCheck, ViewCheck
+from sparself.capture.io.dense import Confirmation, FillControl, FixRound, GapTrend, SelfCheck, ViewCheck
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.content import same_content
 from sparself.core.errors import ConfigError
@@ -87,6 +92,7 @@ from sparself.evaluation.folds import (
     confirm_folds,
     measuring_fold,
     measuring_photos,
+    nearest_held,
     one_wide_gain,
     stand_ins,
     trend_fold,
@@ -187,6 +193,14 @@ class SelfCheckConfig:
         "(synthesized without the end photos, at the largest check weight), as the final fit has them; no: "
         "beside the photos alone; auto: yes for the 3DGS, no for the MPI (measured: it put a samples/bird seed "
         "below N) and the NeRF (measured: it kept less at 9 llff_bird inputs, +1.00 against +1.16 dB)",
+    )
+    fill_control: bool | None = option(
+        None,
+        "each fold also fits content-free fills in place of its kept views (flat fills of their mean colours, and "
+        "two draws of uniform noise; the same poses and weights), and keeps a view only where it beats every fill "
+        "at its held-back photos by more than min_gain: a frame at a new pose can gain by being there (another "
+        "reference for the MPI's blend, cover for a photo past the ends), whatever it shows (auto: for the MPI; "
+        "measured: see docs/results.md)",
     )
     check_seed: int = option(0, "seed of the self-check's fits")
     far_reach: tuple[float, ...] = option(
@@ -474,6 +488,12 @@ def ends_context_on(cfg: SelfCheckConfig) -> bool:
     """Whether the ends fold fits its stand-ins beside the views between the inputs (``cfg.ends_context``;
     auto: for the 3DGS only)."""
     return cfg.ends_context if cfg.ends_context is not None else cfg.recon == "3dgs"
+
+
+def fill_control_on(cfg: SelfCheckConfig) -> bool:
+    """Whether the kept views must beat content-free fills at their poses (``cfg.fill_control``; auto: for the
+    MPI)."""
+    return cfg.fill_control if cfg.fill_control is not None else cfg.recon == "mpi"
 
 
 def _ends_context(inputs: Scene, small: Scene, planned: list[Frame], held: list[int], synth, cfg) -> _Context | None:
@@ -891,7 +911,8 @@ def self_check(
 class _Outcome:
     """The check's decision with one way of weighting the views' pixels: the folds as fitted, their scores,
     the mean PSNR per synthetic-frame weight and the one chosen, the gap trend, the folds' decisions, the kept
-    planned views and each one's gain (NaN: not checked), the confirmation and how many views it tested."""
+    planned views and each one's gain (NaN: not checked), the confirmation and how many views it tested, and
+    the fill control."""
 
     folds: list[_Fold]
     scores: list[_Scores]
@@ -904,6 +925,7 @@ class _Outcome:
     gains: np.ndarray
     confirmation: Confirmation | None
     chosen: int
+    fill: FillControl | None = None
 
 
 def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fixers: _Fixers, cfg) -> _Outcome:
@@ -913,7 +935,9 @@ def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fixers: _
     w = max(weights, key=lambda k: weights[k])
     scores = [s for s, _ in scored]
     trend = _gap_trend(small, folds, scores, wide, w, fits, cfg)
-    decided, unclear = _gated(folds, _decide(small, planned, folds, scored, w, fits, cfg), scores, trend, cfg)
+    decided = _decide(small, planned, folds, scored, w, fits, cfg)
+    decided, fill = _fill_controlled(small, planned, folds, decided, scored, w, fits, cfg)
+    decided, unclear = _gated(folds, decided, scores, trend, cfg)
     keep, gains = np.zeros(len(planned), bool), np.full(len(planned), np.nan)
     for f, d in zip(folds, decided):
         keep[f.views], gains[f.views] = d.keep, d.gains
@@ -922,7 +946,7 @@ def _outcome(inputs, small, planned, folds, wide, scored, synth, fits, fixers: _
         confirmation, keep = _confirmation(inputs, small, planned, keep, w, synth, fits, fixers, cfg)
     if confirmation is not None and not confirmation.confirmed:
         decided, keep = [_dropped(d, s) for d, s in zip(decided, scores)], np.zeros(len(planned), bool)
-    return _Outcome(folds, scores, weights, w, trend, decided, unclear, keep, gains, confirmation, chosen)
+    return _Outcome(folds, scores, weights, w, trend, decided, unclear, keep, gains, confirmation, chosen, fill)
 
 
 def _confirmation(
@@ -1037,6 +1061,67 @@ def _confirm_change(gains) -> str:
     g = np.asarray(gains, np.float64)
     spread = f" (standard error {standard_error(g):.2f})" if g.size > 1 else ""
     return f"{g.mean():+.2f} dB on the mean{spread}, worst {g.min():+.2f}"
+
+
+def _fill_controlled(
+    small: Scene, planned: list[Frame], folds: list[_Fold], decided: list[_Decision], scored, w: float, fits, cfg
+) -> tuple[list[_Decision], FillControl | None]:
+    """The decisions with each kept view dropped where its fold, fitted with content-free fills in place of its
+    kept views (the same poses, weight and pixel weights), renders the view's nearest scored photos about as
+    well: there a view gains by what any frame at its pose adds (a reference for the MPI's blend, cover for a
+    photo past the ends), not by what it shows. Three fills are fitted: flat fills of the views' mean colours
+    and two draws of uniform noise (seeded by ``cfg.check_seed``), and at each photo the views must beat every
+    fill by more than ``cfg.min_gain``. A fill's pattern alone moves a fit by up to a few tenths of a dB at a
+    photo, so views of noise still pass at some photos; more draws would refuse more of them, at the cost of
+    more fits. -> (decisions, the control; None: off, or no view kept)."""
+    ks = [k for k, d in enumerate(decided) if d.keep.any()]
+    if not fill_control_on(cfg) or not ks:
+        return decided, None
+    rng = np.random.default_rng(cfg.check_seed)
+    makers = (_flat, lambda v: _noise(v, rng), lambda v: _noise(v, rng))
+    fitted = iter(
+        fits([_kept_scene(small, folds[k], fill(scored[k][1]), decided[k].keep, w) for fill in makers for k in ks])
+    )
+    by_fill = [[held_back_psnr(small, next(fitted), folds[k].scored) for k in ks] for _ in makers]
+    out, photos, dropped, views, flat, noise = list(decided), [], [], [], [], []
+    for j, k in enumerate(ks):
+        f, d, s = folds[k], decided[k], scored[k][0]
+        fl, na, nb = (p[j] for p in by_fill)
+        beats = d.chosen - np.maximum(fl, np.maximum(na, nb)) > cfg.min_gain  # (scored photos,) where content pays
+        keep = d.keep.copy()
+        for v in np.flatnonzero(keep):
+            keep[v] = bool(beats[nearest_held(small, f.scored, planned[f.views[v]])].all())
+        dropped += [planned[f.views[v]].name for v in np.flatnonzero(d.keep & ~keep)]
+        photos += [small.frames[p].name for p in f.scored]
+        views += [float(x) for x in d.chosen]
+        flat += [float(x) for x in fl]
+        noise += [(float(x), float(y)) for x, y in zip(na, nb)]
+        # a photo whose nearest views all went renders as without views
+        out[k] = replace(d, keep=keep, chosen=np.where(beats, d.chosen, s.without)) if keep.any() else _dropped(d, s)
+    control = FillControl(tuple(photos), tuple(views), tuple(flat), tuple(dropped), tuple(noise))
+    log.info("self-check: %s", _fill_reason(control).removeprefix("; "))
+    return out, control
+
+
+def _flat(views: ValidationViews) -> ValidationViews:
+    """``views`` with each image replaced by its mean colour everywhere (pixel weights unchanged)."""
+    means = views.images.mean(axis=(1, 2), keepdims=True)
+    return replace(views, images=np.broadcast_to(means, views.images.shape).astype(np.float32))
+
+
+def _noise(views: ValidationViews, rng: np.random.Generator) -> ValidationViews:
+    """``views`` with each image replaced by uniform noise in [0, 1] (pixel weights unchanged)."""
+    return replace(views, images=rng.random(views.images.shape, dtype=np.float32))
+
+
+def _fill_reason(c: FillControl) -> str:
+    """The fill control in words."""
+    each = ", ".join(
+        f"{p} {a:.2f} dB against {b:.2f} / {n[0]:.2f} / {n[1]:.2f}"
+        for p, a, b, n in zip(c.photos, c.psnr_views, c.psnr_flat, c.psnr_noise)
+    )
+    said = f"; {len(c.dropped)} dropped ({', '.join(c.dropped)})" if c.dropped else ""
+    return f"; the kept views against flat and two noise fills at their poses, at the held-back photos: {each}{said}"
 
 
 def _gated(
@@ -1155,6 +1240,8 @@ def _record(
     reason = _reason(cfg.recon, kept, len(planned), out.w, best, without, unchecked, out.unclear, other)
     if out.trend is not None:
         reason += _trend_reason(out.trend)
+    if out.fill is not None:
+        reason += _fill_reason(out.fill)
     if out.confirmation is not None:
         reason = _confirm_reason(out.confirmation, out.chosen, cfg.recon, reason)
     reason += _rounds_reason(rounds)
@@ -1174,6 +1261,7 @@ def _record(
         confirmation=out.confirmation,
         pixel_weights=cfg.pixel_weights,
         rounds=rounds,
+        fill_control=out.fill,
     )
 
 

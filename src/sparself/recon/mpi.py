@@ -6,11 +6,13 @@ Where LLFF predicts each plane's RGBA with a network, we derive it from the plan
 reference's 5-view neighbourhood (the reference + its ``neighbors`` nearest cameras by centre distance):
 
 - cost c_d(p): unbiased variance of the valid warped views at plane d (mean over RGB), box-filtered;
-  planes seen by fewer than two views carry no evidence (cost set to the pixel's highest cost);
+  planes seen by fewer than two views carry no evidence (cost set to the pixel's highest cost); a view
+  with per-pixel weights (a synthesized one: its weight x confidence) counts by them in the variance
+  (reliability weights) and in the plane colour, as a fit's loss counts its pixels;
 - depth probability p_d = softmax_d(-c~_d / temperature) with c~ = (c - min_d c) / (mean_d c - min_d c + eps),
   a soft-argmin that is scale free: a pixel whose cost has one clear minimum puts almost all mass on it,
   an untextured pixel (flat cost) spreads it;
-- plane colour C_d = mean of the valid warped views at plane d;
+- plane colour C_d = (weighted) mean of the valid warped views at plane d;
 - alpha α_d such that front-to-back "over" compositing of the planes in the reference view gives the
   weights p_d exactly: α_d = p_d / (1 - Σ_{j<d} p_j), farthest plane opaque.
 
@@ -50,7 +52,9 @@ class MpiConfig:
     add MPIs without shrinking each sweep's baseline (0: the plain nearest cameras, the default: on llff_bird at
     128 px every floor tried scored lower at every density, see benchmarks/oracle_check.py); sweep_synthetic:
     False draws sweep neighbours from the non-synthetic frames only, so added (synthesized) views add MPIs
-    close to the target without entering any other view's depth estimate; render_k: MPIs
+    close to the target without entering any other view's depth estimate; weighted_sweeps: each view counts
+    in a sweep's plane colours and cost by its per-pixel weight (``Scene.pixel_weight``: a synthesized view's
+    weight x confidence), as a fit's loss counts it; render_k: MPIs
     blended per rendered view; box: cost box-filter side (odd); temperature: soft-argmin temperature on
     the normalised cost; gamma: blend falloff in 1 / scene units (None: f / (D z_min)); cache_size: MPIs
     kept in memory (each is D x 4 x H x W float32); max_side: build MPIs at most this large (None: the
@@ -60,6 +64,7 @@ class MpiConfig:
     neighbors: int = 4
     min_baseline: float = 0.0
     sweep_synthetic: bool = True
+    weighted_sweeps: bool = True
     render_k: int = 5
     box: int = 3
     temperature: float = 0.1
@@ -89,17 +94,31 @@ class Mpi:
 
 
 def build_mpi(
-    images: torch.Tensor, Ks: np.ndarray, w2cs: np.ndarray, pose: Pose, depths: np.ndarray, cfg: MpiConfig
+    images: torch.Tensor,
+    Ks: np.ndarray,
+    w2cs: np.ndarray,
+    pose: Pose,
+    depths: np.ndarray,
+    cfg: MpiConfig,
+    weights: torch.Tensor | None = None,
 ) -> Mpi:
     """The MPI of view 0 of a neighbourhood.
 
-    images: (S, 3, H, W), view 0 the reference; Ks: (S, 3, 3); w2cs: (S, 4, 4); depths: (D,) near first.
+    images: (S, 3, H, W), view 0 the reference; Ks: (S, 3, 3); w2cs: (S, 4, 4); depths: (D,) near first;
+    weights: (S, 1, H, W) each view's per-pixel weight in the plane colours and the cost (None: all 1).
     """
     _, _, h, w = images.shape
-    vol, valid = plane_sweep(images, Ks, w2cs, Ks[0], w2cs[0], depths, (h, w))
+    # the weights ride with a channel of ones: their ratio undoes the warp's fading at the image's edge
+    src = images if weights is None else torch.cat([images, weights, torch.ones_like(weights)], 1)
+    vol, valid = plane_sweep(src, Ks, w2cs, Ks[0], w2cs[0], depths, (h, w))
     cnt = valid.sum(0)  # (D, 1, H, W)
-    mean = (valid * vol).sum(0) / cnt.clamp_min(1)  # (D, 3, H, W)
-    var = (valid * (vol - mean) ** 2).sum(0).mean(1, keepdim=True) / (cnt - 1).clamp_min(1)
+    if weights is None:
+        mean = (valid * vol).sum(0) / cnt.clamp_min(1)  # (D, 3, H, W)
+        var = (valid * (vol - mean) ** 2).sum(0).mean(1, keepdim=True) / (cnt - 1).clamp_min(1)
+    else:
+        edge = vol[:, :, 4:]
+        wts = valid * torch.where(edge > 0, vol[:, :, 3:4] / edge.clamp_min(1e-12), torch.zeros_like(edge))
+        mean, var = _weighted_moments(vol[:, :, :3], wts)
     cost = F.avg_pool2d(var, cfg.box, 1, cfg.box // 2, count_include_pad=False)
     informed = cnt >= 2
     worst = torch.where(informed, cost, torch.zeros_like(cost)).amax(0, keepdim=True)
@@ -111,6 +130,16 @@ def build_mpi(
     alpha = (p / (1.0 - before).clamp_min(1e-6)).clamp(0.0, 1.0)
     alpha[-1] = 1.0
     return Mpi(torch.cat([mean, alpha], 1).contiguous(), depths, Ks[0], pose)
+
+
+def _weighted_moments(vol: torch.Tensor, wts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weighted mean colour and unbiased (reliability-weights) variance over views, as :func:`build_mpi`'s
+    plain ones with every weight 1. vol: (S, D, 3, H, W); wts: (S, D, 1, H, W), 0 where a view is invalid.
+    -> ((D, 3, H, W), (D, 1, H, W))."""
+    v1 = wts.sum(0)
+    mean = (wts * vol).sum(0) / v1.clamp_min(1e-12)
+    dof = (v1 - (wts**2).sum(0) / v1.clamp_min(1e-12)).clamp_min(1e-6)
+    return mean, (wts * (vol - mean) ** 2).sum(0).mean(1, keepdim=True) / dof
 
 
 def render_mpi(mpi: Mpi, pose: Pose, K: np.ndarray, out_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -178,14 +207,29 @@ class MpiRenderer:
         Ks = np.stack([sc.camera(i).K if sc.image_size(i) == (w, h) else sc.camera(i).resized(w, h).K for i in idx])
         w2cs = np.stack([sc.frames[i].pose.w2c() for i in idx])
         images = torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy()).float()
-        m = build_mpi(images, Ks, w2cs, sc.frames[r].pose, self.depths, self.cfg)
-        pw = sc.pixel_weight(r)
+        # the reference counts fully in its own MPI (the blend weighs the MPI by it); its neighbours by their weights
+        pws = [sc.pixel_weight(i) for i in idx]
+        own = [None] + pws[1:]
+        weights = None if not self.cfg.weighted_sweeps or all(p is None for p in own) else self._weights(own, (w, h))
+        m = build_mpi(images, Ks, w2cs, sc.frames[r].pose, self.depths, self.cfg, weights)
+        pw = pws[0]
         if pw is not None:  # a floor keeps a weight-0 view a gap filler where no other MPI reaches
             m.weight = torch.from_numpy(np.maximum(pw, MIN_BLEND_WEIGHT))[None]
         self._cache[r] = m
         while len(self._cache) > max(1, self.cfg.cache_size):
             self._cache.popitem(last=False)
         return m
+
+    @staticmethod
+    def _weights(pws: list[np.ndarray | None], size: tuple[int, int]) -> torch.Tensor:
+        """(S, 1, H, W) the neighbourhood's pixel weights at ``size`` = (W, H), 1 where a view has none, with
+        the blend's floor (a weight-0 view still shows where it is all there is)."""
+        w, h = size
+        maps = [
+            np.ones((h, w), np.float32) if p is None else p if p.shape == (h, w) else resize_image(p, (w, h))
+            for p in pws
+        ]
+        return torch.from_numpy(np.maximum(np.stack(maps), MIN_BLEND_WEIGHT))[:, None].float()
 
     def gamma(self, camera: Camera) -> float:
         """Blend falloff γ (1 / scene units): cfg.gamma or f / (D z_min)."""

@@ -127,6 +127,30 @@ class Confirmation:
 
 
 @dataclass(frozen=True)
+class FillControl:
+    """The kept views against content-free fills at their poses (``sparself.json``, in ``selfcheck``): the
+    scored photos of the folds that kept views, their PSNR fitted with those views, with flat fills of the
+    views' mean colours in their place and with two draws of uniform noise there (the same poses and weights),
+    and the views dropped because they did not beat the fills there."""
+
+    photos: tuple[str, ...]
+    psnr_views: tuple[float, ...]
+    psnr_flat: tuple[float, ...]
+    dropped: tuple[str, ...] = ()
+    psnr_noise: tuple[tuple[float, float], ...] = ()
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "FillControl":
+        return cls(
+            tuple(map(str, doc["photos"])),
+            tuple(map(float, doc["psnr_views"])),
+            tuple(map(float, doc["psnr_flat"])),
+            tuple(map(str, doc.get("dropped", ()))),
+            tuple((float(a), float(b)) for a, b in doc.get("psnr_noise", ())),
+        )
+
+
+@dataclass(frozen=True)
 class FixRound:
     """One later round of render -> fix -> refit in the self-check (``sparself.json``, in ``selfcheck``): the
     fixer's test at the held-back photos with the renders of the folds' fits *with* the previous round's
@@ -162,7 +186,8 @@ class SelfCheck:
     best synthetic-frame weight) for each one tried when the check chose between them (empty: not chosen);
     rounds: the later rounds of render -> fix -> refit tried (empty: one round); far_reach: how many times past
     the sparse points' far depth the CPU 3DGS's fits started their random Gaussians, where it was chosen (None:
-    not chosen), and psnr_by_far_reach: (reach, mean PSNR of the held-back photos) for each one tried."""
+    not chosen), and psnr_by_far_reach: (reach, mean PSNR of the held-back photos) for each one tried;
+    fill_control: the kept views against content-free fills at their poses (None: not run)."""
 
     KEY: ClassVar[str] = "selfcheck"  # its key in sparself.json and in an evaluation's per-seed records
 
@@ -184,6 +209,7 @@ class SelfCheck:
     rounds: tuple[FixRound, ...] = ()
     far_reach: float | None = None
     psnr_by_far_reach: tuple[tuple[float, float], ...] = ()
+    fill_control: FillControl | None = None
 
     @property
     def kept(self) -> tuple[str, ...]:
@@ -224,6 +250,7 @@ class SelfCheck:
             psnr_by_far_reach=tuple(
                 (float(d["far_reach"]), float(d["psnr"])) for d in doc.get("psnr_by_far_reach", ())
             ),
+            fill_control=FillControl.from_json(doc["fill_control"]) if doc.get("fill_control") else None,
         )
 
 
