@@ -34,8 +34,10 @@ from sparself.synthesis.plan import PlanConfig, candidate_poses, pick_poses, pla
 from sparself.synthesis.synthesize import Synthesized
 
 PLAN = PlanConfig(n_mid=4, n_extra=2)
-# the geometry these tests spell out is that of views judged outside their own gaps
-MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=96, gain_gap="other")
+# the geometry these tests spell out is that of views judged outside their own gaps; the control against
+# content-free fills (three more fits a fold) is off except where a test protects it
+MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=96, gain_gap="other", fill_control=False)
+MPI_FILLS = replace(MPI, fill_control=None)  # the MPI's default: on
 
 
 def _line(n: int = 12):
@@ -74,7 +76,7 @@ def _noise(scene, targets):
 
 
 def test_bad_views_are_not_written_and_sparself_json_says_why(tmp_path, monkeypatch, caplog):
-    dense = _densify(tmp_path, monkeypatch, _noise)
+    dense = _densify(tmp_path, monkeypatch, _noise, check=MPI_FILLS)
     folder = tmp_path / "out" / "scene"
     assert not any(f.synthetic for f in dense.frames) and len(read_scene(folder)) == 12
     rec = read_selfcheck(folder)
@@ -103,7 +105,7 @@ def test_views_past_the_ends_that_only_cover_the_end_photos_are_not_written(tmp_
     """Past the inputs the MPI leaves part of a held-back end photo uncovered (black), and any view there gains
     by covering it: misplaced views gain over the fit without them, but no more than content-free fills at the
     same poses (flat or noise), so the fill control drops them, and the record says so."""
-    dense = _densify(tmp_path, monkeypatch, _misplaced)
+    dense = _densify(tmp_path, monkeypatch, _misplaced, check=MPI_FILLS)
     rec = read_selfcheck(tmp_path / "out" / "scene")
     past = [v for v in rec.views if not 0 <= v.index <= 11]
     assert len(past) == 2 and all(v.gain > 0 for v in past)  # they gain at the end photos: coverage
@@ -602,7 +604,7 @@ def test_the_confirmation_runs_by_default_for_the_3dgs_and_the_nerf_and_as_asked
 def test_the_fill_control_runs_by_default_for_the_mpi_only_and_as_asked_otherwise():
     from sparself.evaluation.selfcheck import fill_control_on
 
-    assert fill_control_on(MPI) and not fill_control_on(replace(MPI, fill_control=False))
+    assert fill_control_on(MPI_FILLS) and not fill_control_on(MPI)
     assert not any(fill_control_on(SelfCheckConfig(recon=r)) for r in ("3dgs", "nerf"))
     assert fill_control_on(SelfCheckConfig(recon="3dgs", fill_control=True))
 

@@ -6,9 +6,10 @@ Where LLFF predicts each plane's RGBA with a network, we derive it from the plan
 reference's 5-view neighbourhood (the reference + its ``neighbors`` nearest cameras by centre distance):
 
 - cost c_d(p): unbiased variance of the valid warped views at plane d (mean over RGB), box-filtered;
-  planes seen by fewer than two views carry no evidence (cost set to the pixel's highest cost); a view
-  with per-pixel weights (a synthesized one: its weight x confidence) counts by them in the variance
-  (reliability weights) and in the plane colour, as a fit's loss counts its pixels;
+  planes seen by fewer than two views carry no evidence (cost set to the pixel's highest cost); a
+  neighbour with per-pixel weights (a synthesized one: its weight x confidence) counts by them in the
+  variance (reliability weights) and in the plane colour, as a fit's loss counts its pixels (with
+  ``weighted_sweeps``; the reference counts fully in its own MPI, which the blend weighs by its weights);
 - depth probability p_d = softmax_d(-c~_d / temperature) with c~ = (c - min_d c) / (mean_d c - min_d c + eps),
   a soft-argmin that is scale free: a pixel whose cost has one clear minimum puts almost all mass on it,
   an untextured pixel (flat cost) spreads it;
