@@ -898,7 +898,7 @@ def test_the_self_check_record_round_trips_through_json():
         confirmation=Confirmation(("c", "d"), (0.25, -1.5), False),
         pixel_weights="uniform",
         psnr_by_pixel_weights=(("confidence", 21.25), ("uniform", 21.5)),
-        fill_control=FillControl(("a", "e"), (22.5, 19.0), (22.0, 19.25), ("m",), ((21.5, 21.25), (19.5, 19.0))),
+        fill_control=FillControl(("a", "e"), (22.5, 19.0), (22.0, 19.25), ((21.5, 21.25), (19.5, 19.0)), ("m",)),
     )
     assert SelfCheck.from_json(json.loads(json.dumps(seeded.to_json()))) == seeded
     assert rec.kept == ("n",)

@@ -1098,7 +1098,7 @@ def _fill_controlled(
         noise += [(float(x), float(y)) for x, y in zip(na, nb)]
         # a photo whose nearest views all went renders as without views
         out[k] = replace(d, keep=keep, chosen=np.where(beats, d.chosen, s.without)) if keep.any() else _dropped(d, s)
-    control = FillControl(tuple(photos), tuple(views), tuple(flat), tuple(dropped), tuple(noise))
+    control = FillControl(tuple(photos), tuple(views), tuple(flat), tuple(noise), tuple(dropped))
     log.info("self-check: %s", _fill_reason(control).removeprefix("; "))
     return out, control
 

@@ -136,8 +136,8 @@ class FillControl:
     photos: tuple[str, ...]
     psnr_views: tuple[float, ...]
     psnr_flat: tuple[float, ...]
+    psnr_noise: tuple[tuple[float, float], ...]
     dropped: tuple[str, ...] = ()
-    psnr_noise: tuple[tuple[float, float], ...] = ()
 
     @classmethod
     def from_json(cls, doc: dict) -> "FillControl":
@@ -145,8 +145,8 @@ class FillControl:
             tuple(map(str, doc["photos"])),
             tuple(map(float, doc["psnr_views"])),
             tuple(map(float, doc["psnr_flat"])),
+            tuple((float(a), float(b)) for a, b in doc["psnr_noise"]),
             tuple(map(str, doc.get("dropped", ()))),
-            tuple((float(a), float(b)) for a, b in doc.get("psnr_noise", ())),
         )
 
 
