@@ -154,6 +154,32 @@ def test_fast_path_equals_the_per_gaussian_reference():
     assert float(alpha.max()) > 0.999  # the cut-off was exercised
 
 
+def test_pairs_behind_an_opaque_pixel_are_dropped_and_change_no_colour_or_gradient(monkeypatch):
+    """Large, mostly opaque Gaussians: the pairs behind where a pixel's transmittance reaches 1e-4 are not
+    composited, and the image, its alpha and every parameter's gradient are those with every pair kept."""
+    cam = Camera.pinhole(48, 36, 40.0)
+    g = _random_gaussians(200, 0)
+    g.opacity_logits, g.log_scales = g.opacity_logits + 5.0, g.log_scales + 1.0
+    bg = torch.tensor([0.2, 0.3, 0.4], dtype=D)
+    out = {}
+    for margin in (splat.FRONT_MARGIN, float("inf")):  # an infinite margin keeps every pair
+        monkeypatch.setattr(splat, "FRONT_MARGIN", margin)
+        params = {k: getattr(g, k).clone().requires_grad_(True) for k in splat._FIELDS}
+        img, p = render_gaussians(Gaussians(**params), IDENTITY, cam, bg, 1)
+        p.means2d.retain_grad()
+        _, alpha = rasterize(p, cam.width, cam.height, bg)
+        (img * torch.linspace(0, 1, img.numel(), dtype=D).view(img.shape)).sum().backward()
+        grads = {k: v.grad for k, v in params.items()} | {"means2d": p.means2d.grad}
+        out[margin] = (len(splat._pixel_pairs(p, cam.width, cam.height).pix), img.detach(), alpha.detach(), grads)
+    (kept, img, alpha, grads), (every, img_all, alpha_all, grads_all) = out.values()
+    assert kept < 0.8 * every  # pairs were dropped
+    # to the rounding of the one cumsum over every pixel's pairs, which now holds fewer
+    torch.testing.assert_close(img, img_all, rtol=0, atol=1e-10)
+    torch.testing.assert_close(alpha, alpha_all, rtol=0, atol=1e-10)
+    for k in grads:
+        torch.testing.assert_close(grads[k], grads_all[k], rtol=1e-8, atol=1e-10)
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_the_compiled_path_renders_and_differentiates_as_the_plain_one(dtype):
     """The fits' compiled rasterizer: the same pairs, the same image and alpha to float rounding, and the same
