@@ -71,6 +71,7 @@ def check_config(ev: SceneEval, rname: str, seed: int, far_reach: float = 1.0) -
         gap_trend=ev.cfg.check_gap_trend,
         confirm=ev.cfg.check_confirm,
         confirm_prune=ev.cfg.check_confirm_prune,
+        loss_within_gain=ev.cfg.check_loss_within_gain,
         max_photo_loss=ev.cfg.check_max_photo_loss,
         ends_context=ev.cfg.check_ends_context,
         fill_control=ev.cfg.check_fill_control,

@@ -116,6 +116,11 @@ class EvalConfig:
         "the checked row's self-check drops the kept views beside a confirmation photo that loses too much and "
         "tests the rest once more (densify --confirm-prune; auto: for the 3DGS)",
     )
+    check_loss_within_gain: bool = option(
+        True,
+        "the checked row's confirmation fails when one of its photos loses more than they gain on the mean "
+        "(densify --no-loss-within-gain turns it off)",
+    )
     check_max_photo_loss: float | None = option(
         1.0,
         "dB a held-back photo of the checked row's self-check may lose before a fold's views go (densify "

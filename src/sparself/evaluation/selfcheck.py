@@ -253,6 +253,12 @@ class SelfCheckConfig:
         "dinoSparseRing seeds, +0.30 dB against 0, and 6 of a samples/bird seed's 7, +0.25 dB; not measured with "
         "the NeRF)",
     )
+    loss_within_gain: bool = option(
+        True,
+        "the confirmation also fails when one of its photos loses more than its photos gain on the mean: such "
+        "views trade one part of the capture for another, and a gain that small is within what the check's "
+        "smaller fits can tell from the final fit's (measured: see docs/results.md)",
+    )
     seed_noise: bool = option(
         False,
         "fit each fold without views at a second seed too, and keep views only when their gain at the held-back "
@@ -1002,9 +1008,11 @@ def _confirmation(
 def _confirmed_by(photos: tuple[str, ...], gains: np.ndarray, cfg, **more) -> Confirmation:
     """The confirmation of views whose fits change ``photos`` by ``gains`` dB: a clear gain over them, as the
     folds' spread rule asks of the views it keeps (:func:`~sparself.core.metrics.clear_gain`: the mean above its
-    standard error and ``cfg.min_gain``; one photo, which has no spread: not under ``cfg.min_gain``), and no
-    photo losing more than ``cfg.max_photo_loss``."""
+    standard error and ``cfg.min_gain``; one photo, which has no spread: not under ``cfg.min_gain``), no photo
+    losing more than ``cfg.max_photo_loss`` and, with ``cfg.loss_within_gain``, none losing more than the
+    photos gain on the mean."""
     safe = cfg.max_photo_loss is None or gains.min() >= -cfg.max_photo_loss
+    safe = safe and not (cfg.loss_within_gain and gains.min() < -gains.mean())
     gain = clear_gain(gains, cfg.min_gain) if gains.size > 1 else bool(gains.mean() >= cfg.min_gain)
     return Confirmation(photos, tuple(float(g) for g in gains), bool(gain and safe), **more)
 
@@ -1057,10 +1065,11 @@ def _confirm_reason(c: Confirmation, chosen: int, recon: str, reason: str) -> st
 
 def _confirm_change(gains) -> str:
     """A confirmation's changes at its photos (dB), in words, with the standard error that :func:`_confirmed_by`
-    compares their mean with."""
+    compares their mean with, and whether the worst photo loses more than the mean gains."""
     g = np.asarray(gains, np.float64)
     spread = f" (standard error {standard_error(g):.2f})" if g.size > 1 else ""
-    return f"{g.mean():+.2f} dB on the mean{spread}, worst {g.min():+.2f}"
+    trade = ", a loss larger than the mean gain" if 0 < g.mean() < -g.min() else ""
+    return f"{g.mean():+.2f} dB on the mean{spread}, worst {g.min():+.2f}{trade}"
 
 
 def _fill_controlled(
