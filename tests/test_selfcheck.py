@@ -550,7 +550,8 @@ def test_kept_views_are_confirmed_on_the_photos_no_fold_held_back_and_never_from
     c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 18.5}), replace(cfg, max_photo_loss=None))  # mean -0.18
     assert not c.confirmed
     # a gain within its spread over the photos is no evidence, as for the folds' kept views
-    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), replace(cfg, max_photo_loss=None))  # +0.08 ± 0.25
+    spread_only = replace(cfg, max_photo_loss=None, loss_within_gain=False)
+    c, _, _, _ = _confirming(monkeypatch, at({**gains, 8: 19.5}), spread_only)  # +0.08 ± 0.25
     assert not c.confirmed and c.gains == pytest.approx([0.5, 0.5, -0.2, -0.5])
     c, _, _, _ = _confirming(monkeypatch, at({2: 20.6, 6: 20.4, 4: 19.9, 8: 20.5}), cfg)  # +0.35 ± 0.16
     assert c.confirmed
