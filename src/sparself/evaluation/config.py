@@ -119,7 +119,7 @@ class EvalConfig:
     check_loss_within_gain: bool = option(
         True,
         "the checked row's confirmation fails when one of its photos loses more than they gain on the mean "
-        "(densify --no-loss-within-gain turns it off)",
+        "(as densify --no-loss-within-gain)",
     )
     check_max_photo_loss: float | None = option(
         1.0,
