@@ -1012,7 +1012,7 @@ def _confirmed_by(photos: tuple[str, ...], gains: np.ndarray, cfg, **more) -> Co
     losing more than ``cfg.max_photo_loss`` and, with ``cfg.loss_within_gain``, none losing more than the
     photos gain on the mean."""
     safe = cfg.max_photo_loss is None or gains.min() >= -cfg.max_photo_loss
-    safe = safe and not (cfg.loss_within_gain and gains.min() < -gains.mean())
+    safe = safe and not (cfg.loss_within_gain and _loss_beyond_gain(gains))
     gain = clear_gain(gains, cfg.min_gain) if gains.size > 1 else bool(gains.mean() >= cfg.min_gain)
     return Confirmation(photos, tuple(float(g) for g in gains), bool(gain and safe), **more)
 
@@ -1068,8 +1068,13 @@ def _confirm_change(gains) -> str:
     compares their mean with, and whether the worst photo loses more than the mean gains."""
     g = np.asarray(gains, np.float64)
     spread = f" (standard error {standard_error(g):.2f})" if g.size > 1 else ""
-    trade = ", a loss larger than the mean gain" if 0 < g.mean() < -g.min() else ""
+    trade = ", a loss larger than the mean gain" if g.mean() > 0 and _loss_beyond_gain(g) else ""
     return f"{g.mean():+.2f} dB on the mean{spread}, worst {g.min():+.2f}{trade}"
+
+
+def _loss_beyond_gain(gains: np.ndarray) -> bool:
+    """Whether the worst of the photos' changes ``gains`` (dB) loses more than they gain on the mean."""
+    return bool(gains.min() < -gains.mean())
 
 
 def _fill_controlled(
