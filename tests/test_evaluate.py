@@ -398,8 +398,14 @@ def test_the_checked_row_runs_densifys_check_with_the_evaluations_choices():
 
     from sparself.evaluation.checked import check_config
 
-    cfg = EvalConfig(check_plan="paper", check_gain_gap="own", check_steps=123, check_size=48, recon_seed=4)
-    cfg = replace(cfg, check_loss_within_gain=False)
+    cfg = EvalConfig(
+        check_plan="paper",
+        check_gain_gap="own",
+        check_steps=123,
+        check_size=48,
+        recon_seed=4,
+        check_loss_within_gain=False,
+    )
     got = check_config(SimpleNamespace(cfg=cfg, net_synths=[object()]), "3dgs", 2)
     assert (got.recon, got.plan_mode, got.gain_gap, got.check_steps, got.check_seed) == ("3dgs", "paper", "own", 123, 6)
     assert got.check_size == 48 and not got.loss_within_gain
