@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 
 import pytest
@@ -12,6 +13,12 @@ from sparself.synthesis.train import train
 from sparself.synthesis.train_config import TrainConfig
 
 torch.set_num_threads(1)  # the test machine's cores are shared; 1 thread is faster there
+
+# The suite's 3DGS fits are tiny (tens of pixels, tens of steps): compiling the rasterizer costs seconds in each
+# process that fits, test workers, fit workers and commands alike, and saves nothing at these sizes. So the
+# suite runs the plain path (children inherit it through the environment); the compiled path's own tests turn
+# compiling back on (``compiled_splat``). TORCH_COMPILE_DISABLE=0 runs the whole suite compiled.
+torch._dynamo.config.disable = os.environ.setdefault("TORCH_COMPILE_DISABLE", "1") == "1"
 
 # A suite started in the background by a non-interactive shell inherits SIGINT ignored, and so would every
 # command it starts: the tests that press Ctrl-C on a command would see it ignored. A Python handler here
@@ -36,6 +43,19 @@ def make_tiny_cfg(**kw) -> TrainConfig:
     )
     base.update(kw)
     return TrainConfig(**base)
+
+
+@pytest.fixture
+def compiled_splat(monkeypatch):
+    """The CPU 3DGS's compiled path (``torch.compile``), in this process and in the fit workers it spawns."""
+    from sparself.recon import splat
+
+    monkeypatch.setenv("TORCH_COMPILE_DISABLE", "0")
+    monkeypatch.setattr(splat, "_FAST", {})
+    with torch._dynamo.config.patch(disable=False):
+        torch._dynamo.reset()  # code run while compiling was off is marked to be skipped: forget that
+        yield
+        torch._dynamo.reset()
 
 
 @pytest.fixture

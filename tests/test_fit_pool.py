@@ -27,7 +27,7 @@ def _scenes():
     return out
 
 
-def test_workers_fit_exactly_what_this_process_fits():
+def test_workers_fit_exactly_what_this_process_fits(compiled_splat):
     scenes = _scenes()
     a = [Fitter("splat", SPLAT)(sc) for sc in scenes]  # one after the other, here
     with FitPool(2) as two:

@@ -181,7 +181,7 @@ def test_pairs_behind_an_opaque_pixel_are_dropped_and_change_no_colour_or_gradie
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_the_compiled_path_renders_and_differentiates_as_the_plain_one(dtype):
+def test_the_compiled_path_renders_and_differentiates_as_the_plain_one(dtype, compiled_splat):
     """The fits' compiled rasterizer: the same pairs, the same image and alpha to float rounding, and the same
     gradients for every Gaussian parameter (the cut-off at T = 1e-4 exercised)."""
     cam = Camera.pinhole(48, 36, 40.0)
@@ -199,6 +199,7 @@ def test_the_compiled_path_renders_and_differentiates_as_the_plain_one(dtype):
     (img0, alpha0, pairs0, grads0), (img1, alpha1, pairs1, grads1) = out[False], out[True]
     if splat._FAST[splat._composite] is None or splat._FAST[splat._candidates] is None:
         pytest.skip("torch.compile does not run on this machine: fits take the plain path (tested below)")
+    assert torch._dynamo.utils.counters["stats"]["unique_graphs"] >= 1  # compiled, not the plain path twice
     assert float(alpha0.max()) > 0.999 and len(pairs0.pix) > 1000
     for a, b in zip(dataclasses.astuple(pairs0), dataclasses.astuple(pairs1)):
         torch.testing.assert_close(b, a, rtol=0, atol=0)
@@ -232,7 +233,7 @@ def test_without_a_working_compiler_the_plain_path_runs_and_says_so_once(monkeyp
     assert splat._FAST == {splat._candidates: None, splat._composite: None}
 
 
-def test_compiled_fits_are_repeatable_and_as_good_as_plain_ones():
+def test_compiled_fits_are_repeatable_and_as_good_as_plain_ones(compiled_splat):
     """The fit's default (compiled) path: the same seed gives the same Gaussians, and its training views are
     rendered about as well as by a fit on the plain path (chaotic optimisation: not bit for bit)."""
     sc = plane_scene(xs=(0.0, 0.1, 0.2))
