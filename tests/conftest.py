@@ -54,6 +54,7 @@ def compiled_splat(monkeypatch):
     monkeypatch.setattr(splat, "_FAST", {})
     with torch._dynamo.config.patch(disable=False):
         torch._dynamo.reset()  # code run while compiling was off is marked to be skipped: forget that
+        torch._dynamo.utils.counters.clear()  # what compiles from here on, and only that
         yield
         torch._dynamo.reset()
 
