@@ -47,7 +47,8 @@ def make_tiny_cfg(**kw) -> TrainConfig:
 
 @pytest.fixture
 def compiled_splat(monkeypatch):
-    """The CPU 3DGS's compiled path (``torch.compile``), in this process and in the fit workers it spawns."""
+    """The CPU 3DGS's compiled path (``torch.compile``), in this process and in the fit workers it spawns.
+    -> ``graphs()``: how many graphs this process has compiled since (0: only the plain path ran here)."""
     from sparself.recon import splat
 
     monkeypatch.setenv("TORCH_COMPILE_DISABLE", "0")
@@ -55,7 +56,7 @@ def compiled_splat(monkeypatch):
     with torch._dynamo.config.patch(disable=False):
         torch._dynamo.reset()  # code run while compiling was off is marked to be skipped: forget that
         torch._dynamo.utils.counters.clear()  # what compiles from here on, and only that
-        yield
+        yield lambda: torch._dynamo.utils.counters["stats"]["unique_graphs"]
         torch._dynamo.reset()
 
 
