@@ -35,8 +35,9 @@ from sparself.synthesis.synthesize import Synthesized
 
 PLAN = PlanConfig(n_mid=4, n_extra=2)
 # the geometry these tests spell out is that of views judged outside their own gaps; the control against
-# content-free fills (three more fits a fold) is off except where a test protects it
-MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=96, gain_gap="other", fill_control=False)
+# content-free fills (three more fits a fold) is off except where a test protects it. The fits run at the
+# check's default size (64 px, two thirds of the views' side), as densify's do.
+MPI = SelfCheckConfig(recon="mpi", plan_mode="paper", check_size=64, gain_gap="other", fill_control=False)
 MPI_FILLS = replace(MPI, fill_control=None)  # the MPI's default: on
 
 
@@ -105,7 +106,8 @@ def test_views_past_the_ends_that_only_cover_the_end_photos_are_not_written(tmp_
     """Past the inputs the MPI leaves part of a held-back end photo uncovered (black), and any view there gains
     by covering it: misplaced views gain over the fit without them, but no more than content-free fills at the
     same poses (flat or noise), so the fill control drops them, and the record says so."""
-    dense = _densify(tmp_path, monkeypatch, _misplaced, check=MPI_FILLS)
+    # fitted at the views' full size (96 px), where the uncovered strip of each end photo is what decides
+    dense = _densify(tmp_path, monkeypatch, _misplaced, check=replace(MPI_FILLS, check_size=96))
     rec = read_selfcheck(tmp_path / "out" / "scene")
     past = [v for v in rec.views if not 0 <= v.index <= 11]
     assert len(past) == 2 and all(v.gain > 0 for v in past)  # they gain at the end photos: coverage
