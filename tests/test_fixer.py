@@ -4,6 +4,7 @@ from photos neither saw, and is used on a capture only when its merge beats both
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -81,6 +82,14 @@ def test_the_merge_must_beat_both_by_more_than_chance_over_the_photos():
     assert not beats(view + np.array([2.6, -0.6, -0.2]), view, render)
     assert beats(render + 0.5, render - 1.0, render)  # the render is the better of the two: gains count over it
     assert not beats(view[:1] + 5.0, view[:1], render[:1])  # one photo cannot show a spread
+
+
+def test_a_merge_as_exact_as_exact_views_gains_nothing_and_computes_no_nan():
+    exact = np.full(3, np.inf)  # PSNR of an image equal to its photo
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # inf - inf would warn, and its NaN decide by accident
+        assert not beats(exact, exact, np.array([19.0, 19.0, 19.0]))
+        assert not beats(np.array([np.inf, 20.0, 21.0]), np.array([np.inf, 20.0, 21.0]), np.full(3, 19.0))
 
 
 def test_fixing_at_the_renders_size_is_the_blend_and_a_larger_view_is_corrected_in_its_low_frequencies():

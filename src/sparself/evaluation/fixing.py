@@ -117,8 +117,13 @@ def beats(fixed: np.ndarray, view: np.ndarray, render: np.ndarray) -> bool:
     True
     >>> beats(np.array([22.0, 20.2]), np.array([20.0, 21.0]), np.array([19.0, 19.0]))  # +0.6 +- 1.4
     False
+    >>> inf = np.array([np.inf, np.inf])  # exact on both: nothing to gain
+    >>> beats(inf, inf, np.array([19.0, 19.0]))
+    False
     """
-    return metrics.clear_gain(fixed - (view if view.mean() >= render.mean() else render), MIN_GAIN)
+    other = view if view.mean() >= render.mean() else render
+    # equal scores gain nothing, exact (inf) ones included, where inf - inf would be NaN
+    return metrics.clear_gain(np.subtract(fixed, other, out=np.zeros(np.shape(fixed)), where=fixed != other), MIN_GAIN)
 
 
 def validated_fixer(pairs: FixerPairs, steps: int, seed: int, groups: list[list[int]] | None = None) -> FixerFit:
