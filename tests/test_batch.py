@@ -31,7 +31,10 @@ TINY = DensifyConfig(
     out_size=48,
     check=SelfCheckConfig(recon="none"),
 )
+# TINY on the command line: the same settings, so that a re-run through the API continues that batch
 TINY_ARGS = [
+    "--planes",
+    "8",
     "--epochs",
     "2",
     "--crop",
