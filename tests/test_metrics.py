@@ -1,6 +1,7 @@
 """Metrics against hand-computed values and scikit-image."""
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +119,13 @@ def test_a_clear_gain_exceeds_both_its_floor_and_its_standard_error():
     assert not metrics.clear_gain([2.6, -0.6, -0.2])
     assert metrics.clear_gain([2.6, 1.4, 1.8])  # the same spread around a mean of 1.93
     assert not metrics.clear_gain([5.0]) and not metrics.clear_gain([])  # no spread to compare with
+
+
+def test_a_paired_gain_is_the_difference_and_nothing_between_two_exact_scores():
+    after, before = np.array([21.25, 19.5, np.inf, np.inf]), np.array([20.5, 19.5, np.inf, 30.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # inf - inf would warn and give NaN
+        g = metrics.gain(after, before)
+    assert g.tolist() == [0.75, 0.0, 0.0, np.inf] and g.dtype == np.float64
+    assert metrics.gain([[1.0], [2.0]], [0.5, 1.0]).tolist() == [[0.5, 0.0], [1.5, 1.0]]  # broadcast
+    assert float(metrics.gain(22.0, 20.5)) == 1.5

@@ -73,6 +73,18 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float = 1.0) -> float:
     return float(m.mean())
 
 
+def gain(after, before) -> np.ndarray:
+    """Paired dB changes ``after - before`` (scores of the same photos, broadcast together); 0 where the two are
+    equal, exact (inf) scores included, where ``inf - inf`` would be NaN.
+
+    >>> gain([21.0, np.inf], [20.5, np.inf]).tolist()
+    [0.5, 0.0]
+    """
+    a, b = np.asarray(after), np.asarray(before)
+    out = np.zeros(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b, np.float64))
+    return np.subtract(a, b, out=out, where=a != b)
+
+
 def standard_error(values) -> float:
     """The standard error of the mean of ``values`` (any shape; sample standard deviation / sqrt(n)); NaN for fewer
     than two.

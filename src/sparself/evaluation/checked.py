@@ -20,6 +20,7 @@ from typing import Callable, Literal
 import numpy as np
 
 from sparself.capture.scene import Frame, Scene
+from sparself.core.metrics import gain
 from sparself.evaluation.fixing import fixed
 from sparself.evaluation.instruments import fit_each, fit_seed, fits_at_once, renders, with_images
 from sparself.evaluation.results import AT_VIEWS, NETWORK_CHECKED, NETWORK_FIXED, ReconResult, ScoredSet, SeededSets
@@ -184,7 +185,7 @@ def _at_kept_views(
     for at, row in zip(ats, rows, strict=True):
         counts.append(f"{int(at.sum())}/{len(at)}")
         n_only = base[row.seed if row.seed is not None else ev.cfg.first_seed]
-        gains = [f.psnr - b.psnr for f, b, a in zip(row.frames, n_only.frames, at, strict=True) if not a]
+        gains = [float(gain(f.psnr, b.psnr)) for f, b, a in zip(row.frames, n_only.frames, at, strict=True) if not a]
         elsewhere.append(f"{np.mean(gains):+.2f}" if gains else "–")
     return (
         f"{AT_VIEWS}{rname}, N + sparself checked (what densify writes): scored frames at a kept view's pose per "

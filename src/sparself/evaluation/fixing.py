@@ -121,9 +121,7 @@ def beats(fixed: np.ndarray, view: np.ndarray, render: np.ndarray) -> bool:
     >>> beats(inf, inf, np.array([19.0, 19.0]))
     False
     """
-    other = view if view.mean() >= render.mean() else render
-    # equal scores gain nothing, exact (inf) ones included, where inf - inf would be NaN
-    return metrics.clear_gain(np.subtract(fixed, other, out=np.zeros(np.shape(fixed)), where=fixed != other), MIN_GAIN)
+    return metrics.clear_gain(metrics.gain(fixed, view if view.mean() >= render.mean() else render), MIN_GAIN)
 
 
 def validated_fixer(pairs: FixerPairs, steps: int, seed: int, groups: list[list[int]] | None = None) -> FixerFit:

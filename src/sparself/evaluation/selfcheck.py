@@ -81,7 +81,7 @@ from sparself.capture.io.dense import Confirmation, FillControl, FixRound, GapTr
 from sparself.capture.scene import Frame, Scene, preloaded
 from sparself.core.content import same_content
 from sparself.core.errors import ConfigError
-from sparself.core.metrics import clear_gain, standard_error
+from sparself.core.metrics import clear_gain, gain, standard_error
 from sparself.core.options import check_choices, option
 from sparself.evaluation.config import Gap, KeepRule, PixelWeights
 from sparself.evaluation.fixing import FixerFit, FixerPairs, fixed, fixer_pairs, refit_pairs, validated_fixer
@@ -666,7 +666,7 @@ def _refixed(
         rescenes = [_fold_scene(small, f, fixers.weight, cfg) for f in again]
         refitted = fits(rescenes)
         after = np.concatenate([held_back_psnr(small, r, f.scored) for f, r in zip(again, refitted)])
-        kept = clear_gain(after - before, 0.0)
+        kept = clear_gain(gain(after, before), 0.0)
         log.info(
             "self-check: round %d of render -> fix -> refit: the folds' scored photos %.2f -> %.2f dB (%s)",
             k,
@@ -823,7 +823,7 @@ def _decide(small: Scene, planned: list[Frame], folds: list[_Fold], scored, w: f
     proper subset it is refitted alone (all such refits at once) and kept when it beats every view together
     (:func:`_settle`)."""
     gains = [
-        view_gains(small, [planned[i] for i in f.views], s.by_weight[w] - s.without, f.scored)
+        view_gains(small, [planned[i] for i in f.views], gain(s.by_weight[w], s.without), f.scored)
         for f, (s, _) in zip(folds, scored)
     ]
     keeps = [np.ones(len(g), bool) if cfg.keep == "together" else g > cfg.min_gain for g in gains]
@@ -849,7 +849,7 @@ def _settle(
         scored = alone[fold.at_scored]
         if scored.mean() >= chosen.mean():
             chosen = scored
-            worst = None if sc.held_without is None else float((alone - sc.held_without).min())
+            worst = None if sc.held_without is None else float(gain(alone, sc.held_without).min())
         else:
             keep = np.ones(len(keep), bool)
     if not keep.any() or chosen.mean() - sc.without.mean() <= cfg.min_gain:
@@ -986,7 +986,7 @@ def _confirmation(
         scenes = [weight_scenes(small, chosen, _some(v, sub), [w], h)[0] for h, v in zip(helds, made)]
         fitted = fits(scenes)
         return np.concatenate(
-            [held_back_psnr(small, r, h) - held_back_psnr(small, b, h) for h, b, r in zip(helds, bases, fitted)]
+            [gain(held_back_psnr(small, r, h), held_back_psnr(small, b, h)) for h, b, r in zip(helds, bases, fitted)]
         )
 
     photos = [p for h in helds for p in h]
@@ -1013,8 +1013,8 @@ def _confirmed_by(photos: tuple[str, ...], gains: np.ndarray, cfg, **more) -> Co
     photos gain on the mean."""
     safe = cfg.max_photo_loss is None or gains.min() >= -cfg.max_photo_loss
     safe = safe and not (cfg.loss_within_gain and _loss_beyond_gain(gains))
-    gain = clear_gain(gains, cfg.min_gain) if gains.size > 1 else bool(gains.mean() >= cfg.min_gain)
-    return Confirmation(photos, tuple(float(g) for g in gains), bool(gain and safe), **more)
+    clear = clear_gain(gains, cfg.min_gain) if gains.size > 1 else bool(gains.mean() >= cfg.min_gain)
+    return Confirmation(photos, tuple(float(g) for g in gains), bool(clear and safe), **more)
 
 
 def _pruned(small: Scene, frames: list[Frame], photos: list[int], first: Confirmation, change, cfg) -> Confirmation:
@@ -1157,7 +1157,7 @@ def _confirmed(decided: list[_Decision], scores: list[_Scores], cfg) -> tuple[li
     kept = [(d, s) for d, s in zip(decided, scores) if d.keep.any()]
     if not kept:
         return decided, False
-    gains = np.concatenate([d.chosen - s.without for d, s in kept])
+    gains = np.concatenate([gain(d.chosen, s.without) for d, s in kept])
     noise = seed_change([s for _, s in kept])
     if clear_gain(gains, cfg.min_gain) and (noise is None or gains.mean() > noise):
         return decided, False
@@ -1210,11 +1210,11 @@ def _gap_trend(small: Scene, folds: list[_Fold], scores: list[_Scores], wide: li
     and three wide (the gap-trend fold ``wide``, its views the network's, not fixed: no fixer trained
     without its photos), extrapolated to one (:func:`~sparself.evaluation.folds.one_wide_gain`); None when
     either is not measured."""
-    two = [s.by_weight[w] - s.without for f, s in zip(folds, scores) if not f.past_ends]
+    two = [gain(s.by_weight[w], s.without) for f, s in zip(folds, scores) if not f.past_ends]
     if not wide or not two:
         return None
     [(three, _)] = _scores(small, wide, fits, None, replace(cfg, check_weights=(w,)))
-    g2, g3 = float(np.concatenate(two).mean()), float((three.by_weight[w] - three.without).mean())
+    g2, g3 = float(np.concatenate(two).mean()), float(gain(three.by_weight[w], three.without).mean())
     g1 = one_wide_gain(g2, g3)
     log.info(
         "self-check: the views between the inputs gain %+.2f dB in gaps two inputs wide, %+.2f in gaps three "
@@ -1232,7 +1232,7 @@ def seed_change(scores: list[_Scores]) -> float | None:
     those at the second seed: how far the seed alone moves a fit there (None: no second seed fitted)."""
     if not scores or any(s.other is None for s in scores):
         return None
-    return abs(float(np.concatenate([s.other - s.without for s in scores if s.other is not None]).mean()))
+    return abs(float(np.concatenate([gain(s.other, s.without) for s in scores if s.other is not None]).mean()))
 
 
 def _record(
