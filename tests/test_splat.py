@@ -180,6 +180,31 @@ def test_pairs_behind_an_opaque_pixel_are_dropped_and_change_no_colour_or_gradie
         torch.testing.assert_close(grads[k], grads_all[k], rtol=1e-8, atol=1e-10)
 
 
+@pytest.mark.parametrize(("opacity", "scale", "slices"), [(5.0, 1.0, "several"), (-2.0, 0.0, "two")])
+def test_pairs_found_slice_by_slice_are_those_of_one_pass(monkeypatch, opacity, scale, slices):
+    """Where most pixels fill up early in the depth order (large, opaque Gaussians), the pairs behind them are
+    skipped before the sort, slice after slice; where few do (faint ones), the slices after the first are taken
+    at once. Either way the pairs are those found in one pass, in the same order."""
+    cam = Camera.pinhole(48, 36, 40.0)
+    g = _random_gaussians(200, 0)
+    g.opacity_logits, g.log_scales = g.opacity_logits + opacity, g.log_scales + scale
+    _, p = render_gaussians(g, IDENTITY, cam, torch.zeros(3, dtype=D), 1)
+    sorted_pairs, calls = [], []
+    front, one_slice = splat._in_front, splat._slice_candidates
+    monkeypatch.setattr(splat, "_in_front", lambda pix, *a: sorted_pairs.append(len(pix)) or front(pix, *a))
+    monkeypatch.setattr(splat, "_slice_candidates", lambda *a: calls.append(1) or one_slice(*a))
+    sliced = splat._pixel_pairs(p, cam.width, cam.height)
+    monkeypatch.setattr(splat, "PAIR_SLICES", 1)
+    whole = splat._pixel_pairs(p, cam.width, cam.height)
+    assert len(whole.pix) > 1000
+    for a, b in zip(dataclasses.astuple(sliced), dataclasses.astuple(whole)):
+        assert torch.equal(a, b)
+    if slices == "several":
+        assert len(calls) > 3 and sorted_pairs[0] < 0.8 * sorted_pairs[1]  # pairs skipped before the sort
+    else:
+        assert len(calls) == 3 and sorted_pairs[0] == sorted_pairs[1]  # two slices, then one pass
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_the_compiled_path_renders_and_differentiates_as_the_plain_one(dtype, compiled_splat):
     """The fits' compiled rasterizer: the same pairs, the same image and alpha to float rounding, and the same

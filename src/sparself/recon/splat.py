@@ -284,32 +284,116 @@ def _pixel_pairs(p: Projected, width: int, height: int, max_pairs: int = 1 << 26
         m, r = p.means2d, p.radii
         if width * height >= EXACT_FLOAT32:
             m, r = m.double(), r.double()
-        # pixel centres (j + 0.5) within the box around the mean
+        box = _Boxes.around(m, r, width, height)
+        total = int(box.counts.sum())
+        if total > max_pairs:
+            raise MemoryError(f"3dgs: {total} Gaussian-pixel pairs exceed {max_pairs}")
+        gauss, pix, alpha = _front_candidates(m.detach(), p.conics.detach(), p.opacities.detach(), box, compiled)
+        # Gaussians are in depth order: a stable sort by pixel keeps it (of int16 keys where they fit: a
+        # radix sort, 2.4x faster than of int32 ones; the order is the same)
+        key = pix.to(torch.int16) if width * height <= INT16_PIXELS else pix
+        pix, sort = torch.sort(key, stable=True)
+        pix = pix.long()  # int64 out: the backward of an index_select by int32 indices runs at half the speed
+        front = torch.nonzero(_in_front(pix, alpha.index_select(0, sort), width * height)).squeeze(1)
+        gauss, pix = gauss.index_select(0, sort.index_select(0, front)).long(), pix.index_select(0, front)
+        starts = _starts(pix)
+        return _Pairs(gauss, pix, starts, pix.index_select(0, starts))
+
+
+@dataclass
+class _Boxes:
+    """The pixel box of each Gaussian (M,): left column x0, top row y0, right column x1, bottom row y1 (float,
+    inclusive), nx pixels a row, counts (M,) int32 pixels in all; empty boxes count 0."""
+
+    x0: torch.Tensor
+    y0: torch.Tensor
+    x1: torch.Tensor
+    y1: torch.Tensor
+    nx: torch.Tensor
+    counts: torch.Tensor
+    width: int
+    height: int
+
+    @staticmethod
+    def around(m: torch.Tensor, r: torch.Tensor, width: int, height: int) -> "_Boxes":
+        """The pixel centres (j + 0.5) within half-widths ``r`` (M, 2) of the means ``m`` (M, 2)."""
         x0 = torch.ceil(m[:, 0] - r[:, 0] - 0.5).clamp(0, width - 1)
         x1 = torch.floor(m[:, 0] + r[:, 0] - 0.5).clamp(0, width - 1)
         y0 = torch.ceil(m[:, 1] - r[:, 1] - 0.5).clamp(0, height - 1)
         y1 = torch.floor(m[:, 1] + r[:, 1] - 0.5).clamp(0, height - 1)
         nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
-        counts = (nx * ny).int()
-        total = int(counts.sum())
-        if total > max_pairs:
-            raise MemoryError(f"3dgs: {total} Gaussian-pixel pairs exceed {max_pairs}")
-        gauss = torch.repeat_interleave(torch.arange(len(m), dtype=torch.int32), counts, output_size=total)
-        start = torch.cumsum(counts, 0, dtype=torch.int32) - counts
-        candidates = fast(_candidates, _probe_candidates) if compiled and total > 1 else _candidates
-        pix, alpha = candidates(m.detach(), p.conics.detach(), p.opacities.detach(), x0, y0, nx, start, gauss, width)
-        keep = torch.nonzero(alpha > 0).squeeze(1)
-        pix = pix.index_select(0, keep)
-        # Gaussians are in depth order: a stable sort by pixel keeps it (of int16 keys where they fit: a
-        # radix sort, 2.4x faster than of int32 ones; the order is the same)
-        key = pix.to(torch.int16) if width * height <= INT16_PIXELS else pix
-        pix, sort = torch.sort(key, stable=True)
-        rows = keep.index_select(0, sort)
-        pix = pix.long()  # int64 out: the backward of an index_select by int32 indices runs at half the speed
-        front = torch.nonzero(_in_front(pix, alpha.index_select(0, rows), width * height)).squeeze(1)
-        gauss, pix = gauss.index_select(0, rows.index_select(0, front)).long(), pix.index_select(0, front)
-        starts = _starts(pix)
-        return _Pairs(gauss, pix, starts, pix.index_select(0, starts))
+        return _Boxes(x0, y0, x1, y1, nx, (nx * ny).int(), width, height)
+
+    def reach(self, open_pixels: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+        """Whether the boxes of Gaussians lo..hi-1 hold any pixel where ``open_pixels`` (H * W,) bool is true
+        (hi - lo,): four lookups each in the image's summed-area table."""
+        w, h = self.width, self.height
+        table = torch.zeros(h + 1, w + 1, dtype=torch.int32)
+        table[1:, 1:] = open_pixels.view(h, w).int().cumsum(0).cumsum(1)
+        flat = table.view(-1)
+        xa, ya = self.x0[lo:hi].long(), self.y0[lo:hi].long() * (w + 1)
+        xb, yb = self.x1[lo:hi].long() + 1, (self.y1[lo:hi].long() + 1) * (w + 1)
+        return (flat[yb + xb] - flat[ya + xb] - flat[yb + xa] + flat[ya + xa]) > 0
+
+
+# pairs are found slice by slice of the depth order (at most PAIR_SLICES, of about as many pairs each), and a
+# slice's pairs at pixels that the slices in front already took this far (log transmittance) below
+# :func:`_in_front`'s line are skipped before the sort: far clear of rounding, so that :func:`_in_front` alone
+# decides every pair near its line and the pairs found are the same. On a 64 px dinoSparseRing fit, whose
+# pixels are mostly opaque, this made a fit 16 % faster; where few pixels fill up, the slices after the first
+# are taken as one (the mean transmittance so far, extrapolated, tells)
+PAIR_SLICES, SKIP_MARGIN = 8, 1.0
+
+
+def _front_candidates(
+    means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, box: _Boxes, compiled: bool
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The (Gaussian, pixel) pairs of the boxes with alpha >= 1/255, less some that lie behind where their
+    pixel's transmittance has fallen far below T_MIN (PAIR_SLICES): the Gaussian (P,) int32, the pixel (P,)
+    int32 and the alpha (P,), in Gaussian order; the Gaussians' means2d (M, 2), conics (M, 3), opacities (M,)."""
+    n_pix, total = box.width * box.height, int(box.counts.sum())
+    ends = torch.searchsorted(torch.cumsum(box.counts, 0), torch.arange(1, PAIR_SLICES) * total // PAIR_SLICES)
+    bounds = [0, *ends.tolist(), len(box.counts)]
+    skip = math.log(T_MIN) - FRONT_MARGIN - SKIP_MARGIN
+    log_t = torch.zeros(n_pix, dtype=torch.float64)  # each pixel's log transmittance behind the slices so far
+    found: list[tuple[torch.Tensor, ...]] = []
+    lo, k = 0, 0
+    while k < PAIR_SLICES:
+        if found and float(log_t.clamp_min(skip).mean()) * PAIR_SLICES / k > skip:
+            k = PAIR_SLICES - 1  # at this rate the mean pixel never fills up: the rest at once
+        hi, k = bounds[k + 1], k + 1
+        counts = box.counts[lo:hi] * box.reach(log_t > skip, lo, hi) if found else box.counts[lo:hi]
+        gauss, pix, alpha = _slice_candidates(means2d, conics, opacities, box, lo, hi, counts, compiled)
+        keep = alpha > 0
+        if found:
+            keep &= log_t.index_select(0, pix.long()) > skip
+        keep = torch.nonzero(keep).squeeze(1)
+        gauss, pix, alpha = gauss.index_select(0, keep), pix.index_select(0, keep), alpha.index_select(0, keep)
+        log_t.index_add_(0, pix.long(), torch.log1p(-alpha).double())
+        found.append((gauss, pix, alpha))
+        lo = hi
+    return tuple(torch.cat(parts) for parts in zip(*found))  # type: ignore[return-value]
+
+
+def _slice_candidates(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    box: _Boxes,
+    lo: int,
+    hi: int,
+    counts: torch.Tensor,
+    compiled: bool,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Every pixel of the boxes of Gaussians lo..hi-1, ``counts`` (hi - lo,) int32 of each (0: none): the
+    Gaussian (P,) int32 and, by :func:`_candidates`, the pixel (P,) int32 and the alpha (P,)."""
+    size = int(counts.sum())
+    gauss = torch.repeat_interleave(torch.arange(lo, hi, dtype=torch.int32), counts, output_size=size)
+    start = torch.zeros(len(box.counts), dtype=torch.int32)
+    start[lo:hi] = torch.cumsum(counts, 0, dtype=torch.int32) - counts
+    candidates = fast(_candidates, _probe_candidates) if compiled and size > 1 else _candidates
+    pix, alpha = candidates(means2d, conics, opacities, box.x0, box.y0, box.nx, start, gauss, box.width)
+    return gauss, pix, alpha
 
 
 def _starts(pix: torch.Tensor) -> torch.Tensor:
