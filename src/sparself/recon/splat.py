@@ -372,7 +372,8 @@ def _front_candidates(
         log_t.index_add_(0, pix.long(), torch.log1p(-alpha).double())
         found.append((gauss, pix, alpha))
         lo = hi
-    return tuple(torch.cat(parts) for parts in zip(*found))  # type: ignore[return-value]
+    gauss, pix, alpha = (torch.cat(parts) for parts in zip(*found))
+    return gauss, pix, alpha
 
 
 def _slice_candidates(
